@@ -1,0 +1,5 @@
+import sys
+
+from footmesh.cli import main
+
+sys.exit(main())

@@ -1,0 +1,89 @@
+"""Pictures of feet for docs and reports: shaded orthographic views drawn with matplotlib (no GPU, no window).
+
+matplotlib's 3D axes sort whole collections badly; a painter's algorithm over the triangles with Lambert
+shading, drawn as a 2D PolyCollection, gives clean pictures of an 8,000-face mesh in well under a second.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+
+from footmesh.model import skeleton as sk
+
+VIEWS: dict[str, np.ndarray] = {
+    # rows: screen-right, screen-up, towards the viewer (foot frame axes)
+    "top": np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]),
+    "medial": np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]]),
+    "lateral": np.array([[-1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, 1.0, 0.0]]),
+    "front": np.array([[0.0, 1.0, 0.0], [0.0, 0.0, 1.0], [1.0, 0.0, 0.0]]),
+    "back": np.array([[0.0, -1.0, 0.0], [0.0, 0.0, 1.0], [-1.0, 0.0, 0.0]]),
+}
+
+
+def oblique_view(azimuth_deg: float = -60.0, elevation_deg: float = 25.0) -> np.ndarray:
+    """A (3, 3) view matrix looking at the foot from the given azimuth (about z) and elevation."""
+    a, e = np.radians(azimuth_deg), np.radians(elevation_deg)
+    towards = np.array([np.cos(e) * np.cos(a), np.cos(e) * np.sin(a), np.sin(e)])
+    right = np.cross([0.0, 0.0, 1.0], towards)
+    right /= np.linalg.norm(right)
+    up = np.cross(towards, right)
+    return np.stack([right, up, towards])
+
+
+def draw_mesh(
+    ax,
+    vertices: np.ndarray,
+    faces: np.ndarray,
+    view: str | np.ndarray = "medial",
+    colour: Sequence[float] = (0.86, 0.72, 0.62),
+    vertex_colours: np.ndarray | None = None,
+    alpha: float = 1.0,
+    edges: bool = False,
+) -> np.ndarray:
+    """Draw a shaded mesh on a 2D matplotlib axis; returns the (3, 3) view matrix used.
+
+    Args:
+        vertices: (V, 3) mm. faces: (F, 3). view: a name of ``VIEWS`` or a (3, 3) matrix.
+        vertex_colours: optional (V, 3) RGB in 0..1 (e.g. skinning weights shown as colours).
+    """
+    from matplotlib.collections import PolyCollection
+
+    rot = VIEWS[view] if isinstance(view, str) else np.asarray(view)
+    p = vertices @ rot.T  # (V, 3): screen x, screen y, depth towards viewer
+    tri = p[faces]  # (F, 3, 3)
+    normal = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    normal /= np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-12)
+    facing = normal[:, 2] > 0
+    light = np.array([0.3, 0.5, 0.81])
+    shade = 0.35 + 0.65 * np.clip(normal @ light, 0.0, 1.0)
+    base = (
+        vertex_colours[faces].mean(axis=1) if vertex_colours is not None else np.tile(colour, (len(faces), 1))
+    )
+    rgb = np.clip(base * shade[:, None], 0.0, 1.0)
+    order = np.argsort(tri[:, :, 2].mean(axis=1))
+    order = order[facing[order]]
+    coll = PolyCollection(
+        tri[order, :, :2],
+        facecolors=np.concatenate([rgb[order], np.full((len(order), 1), alpha)], axis=1),
+        edgecolors=(0, 0, 0, 0.15) if edges else "face",
+        linewidths=0.2 if edges else 0.1,
+    )
+    ax.add_collection(coll)
+    ax.set_aspect("equal")
+    ax.autoscale_view()
+    ax.axis("off")
+    return rot
+
+
+def draw_skeleton(ax, joints: np.ndarray, rot: np.ndarray, labels: bool = False, size: float = 18.0) -> None:
+    """Draw the 18 joints and the bones between them (projected with the view matrix ``rot``)."""
+    p = joints @ rot.T
+    for c in range(1, sk.NUM_JOINTS):
+        q = sk.PARENTS[c]
+        ax.plot([p[q, 0], p[c, 0]], [p[q, 1], p[c, 1]], "-", color="#1f4e9c", lw=1.4, zorder=5)
+    ax.scatter(p[:, 0], p[:, 1], s=size, c="#d62728", edgecolors="white", linewidths=0.6, zorder=6)
+    if labels:
+        for j in range(sk.NUM_JOINTS):
+            ax.annotate(f"{j}", p[j, :2], textcoords="offset points", xytext=(3, 3), fontsize=6, zorder=7)
