@@ -60,7 +60,12 @@ def local_rotations(angles: torch.Tensor) -> torch.Tensor:
     is_z = _DOF_IS_Z.to(angles.device)
     angle_y = angle_y.index_add(1, dof_joint[~is_z], angles[:, ~is_z])
     angle_z = angle_z.index_add(1, dof_joint[is_z], angles[:, is_z])
-    return rot_y(angle_y) @ rot_z(angle_z)
+    cy, sy = torch.cos(angle_y), torch.sin(angle_y)
+    cz, sz = torch.cos(angle_z), torch.sin(angle_z)
+    zero = torch.zeros_like(cy)
+    # R_y(y) @ R_z(z) written out: one stack instead of two matrices and a batched matmul.
+    rows = [cy * cz, -cy * sz, sy, sz, cz, zero, -sy * cz, sy * sz, cy]
+    return torch.stack(rows, dim=-1).reshape(b, sk.NUM_JOINTS, 3, 3)
 
 
 def forward_kinematics(angles: torch.Tensor, rest_joints: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
