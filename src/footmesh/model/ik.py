@@ -409,9 +409,10 @@ NATURAL_POSE_SD = {
     "midfoot_ankle_y": 0.2,
     "ankle_y": 0.05,
     "toe_flexion_common": 0.35,
-    "toe_flexion_individual": 0.1,
+    "toe_flexion_individual": 0.05,
     "proximal_z": 0.05,
-    "distal_y": 0.25,
+    "distal_y": 0.15,
+    "distal_individual": 0.05,
 }
 """Spreads (radians) of ``sample_poses(method="natural")``; see its docstring."""
 
@@ -419,21 +420,24 @@ NATURAL_POSE_SD = {
 def natural_angles(n: int, generator: torch.Generator | np.random.Generator | int | None = None) -> torch.Tensor:
     """(n, 22) float64 angles of everyday foot poses: see ``sample_poses(method="natural")``."""
     sd = NATURAL_POSE_SD
-    u = _uniform((n, 2 * sk.NUM_DOFS + 2), generator)
+    u = _uniform((n, 2 * sk.NUM_DOFS + 4), generator)
     # Box-Muller normals from pairs of uniforms (one draw stream for torch and numpy generators alike).
-    normal = torch.sqrt(-2.0 * torch.log1p(-u[:, 0::2])) * torch.cos(2.0 * math.pi * u[:, 1::2])  # (n, 23)
+    normal = torch.sqrt(-2.0 * torch.log1p(-u[:, 0::2])) * torch.cos(2.0 * math.pi * u[:, 1::2])  # (n, 24)
     angles = torch.zeros(n, sk.NUM_DOFS, dtype=torch.float64)
     index = {name: i for i, name in enumerate(sk.DOF_NAMES)}
     angles[:, index["midfoot_ankle_y"]] = sd["midfoot_ankle_y"] * normal[:, 0]
     angles[:, index["ankle_y"]] = sd["ankle_y"] * normal[:, 1]
     common = sd["toe_flexion_common"] * normal[:, 2]  # the toes flex together
+    # and curl together: FIND's lesser toes touch along their length, so toes moving apart would tear the skin
+    common_curl = sd["distal_y"] * normal[:, 23].abs()
     for k in range(1, 6):
         z = normal[:, 3 + 4 * (k - 1) : 7 + 4 * (k - 1)]
         angles[:, index[f"toe{k}_metatarsal_y"]] = 0.05 + 0.025 * z[:, 0]
         angles[:, index[f"toe{k}_proximal_y"]] = common + sd["toe_flexion_individual"] * z[:, 1]
         angles[:, index[f"toe{k}_proximal_z"]] = sd["proximal_z"] * z[:, 2]
         # curled toes: the distal joint bends more when the toe is flexed down
-        angles[:, index[f"toe{k}_distal_y"]] = 0.5 * common.clamp_min(0.0) + sd["distal_y"] * z[:, 3].abs()
+        curl = common_curl + sd["distal_individual"] * z[:, 3]
+        angles[:, index[f"toe{k}_distal_y"]] = 0.3 * common.clamp_min(0.0) + curl
     return lbs.clamp_angles(angles)
 
 

@@ -45,7 +45,7 @@ MIDFOOT_HEIGHT_FRACTION = 0.4
 ROOT_BONE_START = 0.35
 """Bones leaving the midfoot start this fraction of the way out, so that the tarsal region around the midfoot
 joint belongs to the root (it does not move with any joint angle)."""
-HEAT_CONSTANT = 1.0
+HEAT_CONSTANT = 0.3
 MIN_WEIGHT = 0.01
 """Weights below this are dropped (and the rest renormalised) to keep skinning local."""
 
