@@ -115,8 +115,11 @@ def skin(vertices: torch.Tensor, transforms: torch.Tensor, weights: torch.Tensor
     Returns:
         (B, V, 3) posed vertices, mm.
     """
-    blended = torch.einsum("vj,bjrc->bvrc", weights, transforms)  # (B, V, 3, 4)
-    return (blended[..., :3] @ vertices.unsqueeze(-1)).squeeze(-1) + blended[..., 3]
+    # Blend the transforms' departures from the identity, so that the zero pose returns ``vertices`` bit for
+    # bit even though float weights sum to 1 only within rounding.
+    eye = torch.eye(3, 4, dtype=transforms.dtype, device=transforms.device)
+    blended = torch.einsum("vj,bjrc->bvrc", weights, transforms - eye)  # (B, V, 3, 4)
+    return vertices + (blended[..., :3] @ vertices.unsqueeze(-1)).squeeze(-1) + blended[..., 3]
 
 
 def inverse_skin(posed: torch.Tensor, transforms: torch.Tensor, weights: torch.Tensor) -> torch.Tensor:
@@ -127,7 +130,8 @@ def inverse_skin(posed: torch.Tensor, transforms: torch.Tensor, weights: torch.T
     Returns:
         (B, V, 3) rest vertices, mm.
     """
-    blended = torch.einsum("vj,bjrc->bvrc", weights, transforms)
+    eye = torch.eye(3, 4, dtype=transforms.dtype, device=transforms.device)
+    blended = eye + torch.einsum("vj,bjrc->bvrc", weights, transforms - eye)  # as in ``skin``
     return torch.linalg.solve(blended[..., :3], (posed - blended[..., 3]).unsqueeze(-1)).squeeze(-1)
 
 
