@@ -23,7 +23,8 @@ demo: $(STAMP)
 test: $(STAMP)
 	$(BIN)/ruff check src tests benchmarks
 	$(BIN)/ruff format --check src tests benchmarks
-	$(BIN)/python -m pytest -n 2 tests
+	# two test processes on two cores: one BLAS/OpenMP thread each, or they fight over the cores
+	OPENBLAS_NUM_THREADS=1 OMP_NUM_THREADS=1 $(BIN)/python -m pytest -n 2 tests
 
 lint: $(STAMP)
 	$(BIN)/ruff check --fix src tests benchmarks
@@ -34,7 +35,8 @@ bench: $(STAMP)
 
 # Rebuild the shape model asset from ../shared/find (reproducible bit for bit).
 model: $(STAMP)
-	$(BIN)/footmesh model build-from-find --find ../shared/find --out src/footmesh/model/data/foot_model.npz
+	$(BIN)/footmesh model build-from-find --find ../shared/find --out src/footmesh/model/data/foot_model.npz \
+		--skin-out src/footmesh/model/data/skin_colours.npz
 
 clean:
 	rm -rf $(VENV) demo_out .pytest_cache .ruff_cache

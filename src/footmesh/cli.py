@@ -51,7 +51,116 @@ def _run_demo(args: argparse.Namespace) -> int:
 def _add_model_commands(sub: argparse._SubParsersAction) -> None:
     model = sub.add_parser("model", help="build and inspect foot models")
     model_sub = model.add_subparsers(dest="model_command", required=True)
-    del model_sub  # subcommands are added below by the modules' owners
+    _add_model_register_commands(model_sub)
+    _add_model_find_command(model_sub)
+
+
+def _add_model_find_command(model_sub: argparse._SubParsersAction) -> None:
+    """``model build-from-find`` (issue 2: the packaged PCA model from FIND)."""
+    find = model_sub.add_parser("build-from-find", help="build the PCA foot model (and skin colours) from FIND")
+    find.add_argument("--find", required=True, help="FIND folder (template.obj, model.onnx, latents.json)")
+    find.add_argument("--out", required=True, help="model asset to write (.npz)")
+    find.add_argument("--n", type=int, default=2000, help="training samples (default 2000)")
+    find.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    find.add_argument("--skin-out", help="also write the skin colour asset (.npz) here")
+    find.add_argument("--no-progress", action="store_true", help="no progress bar")
+    find.set_defaults(func=_run_model_build_from_find)
+
+
+def _run_model_build_from_find(args: argparse.Namespace) -> int:
+    from footmesh.model.build_find import build_from_find, build_skin_colours
+
+    if args.n < 2:
+        raise UserError(f"--n must be at least 2, got {args.n}")
+    report = build_from_find(args.find, args.out, n_samples=args.n, seed=args.seed, progress=not args.no_progress)
+    log.info(
+        "wrote %s (%.2f MB) in %.0f s: %d components, %.3f%% of the variance, held-out error %.3f mm",
+        report.path,
+        report.size_bytes / 1e6,
+        report.seconds,
+        report.num_components,
+        100 * report.explained_variance,
+        report.heldout_error_mm,
+    )
+    for sex, st in report.stats.items():
+        log.info(
+            "  %s (n=%d): length %.1f +- %.1f mm, ball width %.1f +- %.1f mm, width/length %.3f +- %.3f",
+            sex,
+            st["n"],
+            st["length_mean"],
+            st["length_sd"],
+            st["width_mean"],
+            st["width_sd"],
+            st["ratio_mean"],
+            st["ratio_sd"],
+        )
+    if args.skin_out:
+        log.info("wrote %s", build_skin_colours(args.find, args.skin_out, seed=args.seed))
+    return 0
+
+
+def _add_model_register_commands(model_sub: argparse._SubParsersAction) -> None:
+    """``model register`` and ``model build`` (issue 3: template registration, models from scans)."""
+    reg = model_sub.add_parser(
+        "register", help="fit the template to one scan (Allen et al. per-vertex affine registration)"
+    )
+    reg.add_argument("scan", help="scan mesh: .obj, .ply, .stl or .off (mm unless --unit)")
+    reg.add_argument("--markers", help="marker file (JSON, see docs/registration.md)")
+    reg.add_argument("--out", required=True, help="registered mesh to write (.ply, .obj, .stl)")
+    reg.add_argument("--unit", choices=("mm", "cm", "m"), default="mm", help="the scan's length unit")
+    reg.add_argument("--template", help="model asset (.npz) whose mean is the template (default: packaged)")
+    reg.add_argument("--no-prior", action="store_true", help="do not use the model's components as prior")
+    reg.set_defaults(func=_run_model_register)
+
+    build = model_sub.add_parser("build", help="build a PCA foot model from a folder of scans (resumable)")
+    build.add_argument("--scans", required=True, help="folder of scans (.obj, .ply, .stl, .off)")
+    build.add_argument("--out", required=True, help="model asset to write (.npz)")
+    build.add_argument("--markers-dir", help="folder of marker files <scan stem>[.markers].json (default: --scans)")
+    build.add_argument("--work", help="cache of registered scans (default: <out>.work)")
+    build.add_argument("--unit", choices=("mm", "cm", "m"), default="mm", help="the scans' length unit")
+    build.add_argument("--template", help="model asset (.npz) whose mean is the template (default: packaged)")
+    build.add_argument("--no-prior", action="store_true", help="do not use the model's components as prior")
+    build.add_argument("--variance", type=float, default=0.99, help="fraction of variance kept (default 0.99)")
+    build.add_argument("--no-progress", action="store_true", help="no progress bar")
+    build.set_defaults(func=_run_model_build)
+
+
+def _run_model_register(args: argparse.Namespace) -> int:
+    import trimesh
+
+    from footmesh.model.assets import load_asset
+    from footmesh.model.build_scans import BuildConfig, register_scan_file
+
+    template = load_asset(args.template)
+    cfg = BuildConfig(unit=args.unit, use_prior=not args.no_prior)
+    res = register_scan_file(args.scan, template, args.markers, cfg)
+    trimesh.Trimesh(res.vertices, res.faces, process=False).export(args.out)
+    log.info(
+        "registered %s in %.1f s (init: %s): mean distance to the scan %.3f mm, %d folded faces; wrote %s",
+        args.scan,
+        res.seconds,
+        res.init_method,
+        res.mean_distance_mm,
+        res.flipped_faces,
+        args.out,
+    )
+    return 0
+
+
+def _run_model_build(args: argparse.Namespace) -> int:
+    from footmesh.model.assets import load_asset
+    from footmesh.model.build_scans import BuildConfig, build_model
+
+    template = load_asset(args.template)
+    cfg = BuildConfig(unit=args.unit, use_prior=not args.no_prior, variance=args.variance)
+    summary = build_model(
+        args.scans, args.out, template, args.markers_dir, args.work, cfg, progress=not args.no_progress
+    )
+    print(summary.text())
+    if summary.asset is None:
+        raise UserError(f"{summary.succeeded} scans registered; a model needs at least 2, nothing written")
+    print(f"wrote {summary.out}: {summary.asset!r}")
+    return 0
 
 
 # --- entry point ---------------------------------------------------------------------------------------------

@@ -22,7 +22,7 @@ from footmesh.model import ik, lbs
 from footmesh.model import skeleton as sk
 from footmesh.model.layer import FootModel, side_mask
 
-FIT_ITERATIONS = 15
+FIT_ITERATIONS = 40
 """Gauss-Newton / Levenberg-Marquardt iterations of ``canonicalise`` (exact data converges in about 5-10)."""
 JOINT_WEIGHT = 1.0
 """Weight of the joint residual (mm per mm) against the vertex residual when posed joints are given."""

@@ -58,7 +58,9 @@ class FootModel(nn.Module):
         self.register_buffer("components", torch.as_tensor(asset.components, dtype=dtype))
         self.register_buffer("component_sd", torch.as_tensor(asset.component_sd, dtype=dtype))
         self.register_buffer("joint_regressor", torch.as_tensor(asset.joint_regressor, dtype=dtype))
-        self.register_buffer("skin_weights", torch.as_tensor(asset.skin_weights, dtype=dtype))
+        weights = torch.as_tensor(asset.skin_weights, dtype=dtype)
+        # renormalised in the working precision: rows of the float32 asset sum to 1 only within 1e-7
+        self.register_buffer("skin_weights", weights / weights.sum(dim=1, keepdim=True))
         self.register_buffer("faces_left", torch.as_tensor(asset.faces.astype(np.int64)))
 
     @property

@@ -45,6 +45,8 @@ MIDFOOT_HEIGHT_FRACTION = 0.4
 ROOT_BONE_START = 0.35
 """Bones leaving the midfoot start this fraction of the way out, so that the tarsal region around the midfoot
 joint belongs to the root (it does not move with any joint angle)."""
+ROOT_BONE_RADIUS = 15.0
+"""mm taken off every vertex's distance to the root bone, see ``bone_heat_weights``."""
 HEAT_CONSTANT = 0.3
 MIN_WEIGHT = 0.01
 """Weights below this are dropped (and the rest renormalised) to keep skinning local."""
@@ -134,27 +136,40 @@ def build_rig(vertices: np.ndarray, faces: np.ndarray, landmarks: dict[str, int]
     return Rig(regressor.astype(np.float32), weights.astype(np.float32), targets, groups)
 
 
-def bone_segments(joints: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Bones used for the weights: (18, 3) starts and ends; bone j is the segment ending at joint j.
+def bone_segments(joints: np.ndarray, leg_top_z: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Bones used for the weights: starts (N, 3), ends (N, 3) and the weight column each bone heats (N,).
 
-    Bone 0 is the midfoot joint itself (a point); bones leaving the midfoot start ``ROOT_BONE_START`` out.
+    Bone j (< 18) is the segment ending at joint j; bones leaving the midfoot start ``ROOT_BONE_START`` out.
+    Bone 0 (the root, which no angle moves) runs from the midfoot joint ``ROOT_BONE_START`` of the way towards the
+    metatarsophalangeal joints, where the bones leaving the midfoot start. One more bone, the lower leg, runs
+    from the ankle straight up to ``leg_top_z`` and moves with the ankle's segment (column 16).
     """
     starts = np.empty_like(joints)
     ends = joints.copy()
+    mtp_centre = joints[[b[0] for b in sk.TOE_BRANCHES]].mean(axis=0)
     starts[0] = joints[0]
+    ends[0] = joints[0] + ROOT_BONE_START * (mtp_centre - joints[0])
     for c in range(1, sk.NUM_JOINTS):
         p = sk.PARENTS[c]
         start_fraction = ROOT_BONE_START if p == 0 else 0.0
         starts[c] = joints[p] + start_fraction * (joints[c] - joints[p])
-    return starts, ends
+    ankle = sk.HEEL_BRANCH[0]
+    leg_start = joints[ankle]
+    leg_end = np.array([leg_start[0], leg_start[1], max(leg_top_z, leg_start[2])])
+    columns = np.append(np.arange(sk.NUM_JOINTS), ankle)
+    return np.vstack([starts, leg_start]), np.vstack([ends, leg_end]), columns
 
 
 def bone_heat_weights(vertices: np.ndarray, faces: np.ndarray, joints: np.ndarray) -> np.ndarray:
     """(V, 18) bone-heat skinning weights (Baran & Popovic 2007), rows summing to 1."""
-    starts, ends = bone_segments(joints)
-    dist = _point_segment_distances(vertices, starts, ends)  # (V, 18)
-    nearest = dist.argmin(axis=1)
-    d = np.maximum(dist[np.arange(len(vertices)), nearest], 1e-3)
+    starts, ends, columns = bone_segments(joints, float(vertices[:, 2].max()))
+    dist = _point_segment_distances(vertices, starts, ends)  # (V, N bones)
+    # The tarsal bones are a broad block, not a thin bone: without this the surface around the midfoot would
+    # all go to the bones leaving it and nothing would hold the root (and the global pose) in place.
+    dist[:, 0] = np.maximum(dist[:, 0] - ROOT_BONE_RADIUS, 1e-3)
+    nearest_bone = dist.argmin(axis=1)
+    nearest = columns[nearest_bone]
+    d = np.maximum(dist[np.arange(len(vertices)), nearest_bone], 1e-3)
     laplacian, areas = _cotangent_laplacian(vertices, faces)
     heat = HEAT_CONSTANT * areas / d**2
     system = (laplacian + sp.diags(heat)).tocsc()
