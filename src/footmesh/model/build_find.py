@@ -16,8 +16,7 @@ Steps (``build_from_find``):
 4. PCA (:func:`footmesh.model.pca.fit_pca`), keeping enough components for ``variance`` of the variance and a
    held-out reconstruction error under ``max_error_mm``.
 5. Rig the mean (:func:`footmesh.model.rig.build_rig`) and write the asset
-   (:func:`footmesh.model.assets.save_asset`), then rewrite its zip with fixed timestamps so that the bytes
-   depend only on the arrays.
+   (:func:`footmesh.model.assets.save_asset`, whose bytes depend only on the arrays).
 """
 
 from __future__ import annotations
@@ -25,7 +24,6 @@ from __future__ import annotations
 import logging
 import os
 import time
-import zipfile
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -43,7 +41,6 @@ TEST_SEED_OFFSET = 1_000_003
 SIZE_STREAM = 1
 """Sizes are drawn from ``default_rng([seed, SIZE_STREAM])``, shapes from ``default_rng(seed)``."""
 SCALE_ITERATIONS = 3
-ZIP_DATE_TIME = (1980, 1, 1, 0, 0, 0)
 
 
 @dataclass(frozen=True)
@@ -318,7 +315,6 @@ def build_from_find(
     )
     out = Path(out_path)
     save_asset(asset, out)
-    fix_zip_timestamps(out)
     stats = population_stats(train, sizes.male)
     return BuildReport(out, k, float(ratio.sum()), error, stats, time.perf_counter() - t0, out.stat().st_size)
 
@@ -329,24 +325,6 @@ def _kabsch_rotation(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     u, _, vt = np.linalg.svd(b0.T @ a0)
     d = np.sign(np.linalg.det(u @ vt))
     return u @ np.diag([1.0, 1.0, d]) @ vt
-
-
-def fix_zip_timestamps(path: str | os.PathLike) -> None:
-    """Rewrite a ``.npz`` (zip) with every member dated ``ZIP_DATE_TIME``, so the bytes depend only on the arrays.
-
-    ``np.savez_compressed`` stamps each member with the current time; two builds a second apart differ.
-    """
-    p = Path(path)
-    with zipfile.ZipFile(p) as zin:
-        members = [(info, zin.read(info)) for info in zin.infolist()]
-    tmp = p.with_suffix(p.suffix + ".tmp")
-    with zipfile.ZipFile(tmp, "w", compression=zipfile.ZIP_DEFLATED) as zout:
-        for info, data in members:
-            fixed = zipfile.ZipInfo(info.filename, date_time=ZIP_DATE_TIME)
-            fixed.compress_type = zipfile.ZIP_DEFLATED
-            fixed.external_attr = 0o644 << 16
-            zout.writestr(fixed, data)
-    os.replace(tmp, p)
 
 
 SKIN_COMPONENTS = 8
@@ -380,5 +358,4 @@ def build_skin_colours(
     )
     out = Path(out_path)
     save_skin_colours(SkinColours(mean, comps, sd, provenance), out)
-    fix_zip_timestamps(out)
     return out

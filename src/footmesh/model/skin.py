@@ -90,14 +90,15 @@ def sample_skin_colours(rng: np.random.Generator, n: int, colours: SkinColours |
 
 def save_skin_colours(colours: SkinColours, path: str | os.PathLike) -> None:
     """Write the skin colour asset (float16 mean and components)."""
-    p = Path(path)
-    p.parent.mkdir(parents=True, exist_ok=True)
-    with p.open("wb") as fh:
-        np.savez_compressed(
-            fh,
-            format_version=np.array(FORMAT_VERSION),
-            mean=colours.mean.astype(np.float16),
-            components=colours.components.astype(np.float16),
-            sd=colours.sd.astype(np.float32),
-            provenance=np.array(colours.provenance),
-        )
+    from footmesh.model.assets import write_npz
+
+    write_npz(
+        path,
+        {
+            "format_version": np.array(FORMAT_VERSION),
+            "mean": colours.mean.astype(np.float16),
+            "components": colours.components.astype(np.float16),
+            "sd": colours.sd.astype(np.float32),
+            "provenance": np.array(colours.provenance),
+        },
+    )
