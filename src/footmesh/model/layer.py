@@ -106,6 +106,8 @@ class FootModel(nn.Module):
             shape = ref.new_zeros(batch, 0)
         if angles is None:
             angles = ref.new_zeros(batch, sk.NUM_DOFS)
+        # parameters follow the model's precision (float32 for speed, float64 for fitting and gradcheck)
+        shape, angles = shape.to(ref.dtype), angles.to(ref.dtype)
         if shape.dim() != 2 or shape.shape[1] > self.num_components:
             raise ValueError(f"shape must be (B, K<={self.num_components}), got {tuple(shape.shape)}")
         if angles.shape != (batch, sk.NUM_DOFS):
@@ -124,9 +126,11 @@ class FootModel(nn.Module):
         mirror = torch.stack([torch.ones_like(flip), flip, torch.ones_like(flip)], dim=-1)  # (B, 1, 3)
         vertices, joints = vertices * mirror, joints * mirror
         if rotation is not None:
+            rotation = rotation.to(ref.dtype)
             vertices = vertices @ rotation.transpose(-1, -2)
             joints = joints @ rotation.transpose(-1, -2)
         if translation is not None:
+            translation = translation.to(ref.dtype)
             vertices = vertices + translation.unsqueeze(1)
             joints = joints + translation.unsqueeze(1)
         return FootOutput(vertices, joints, v_shaped, rest_joints, transforms, right)
