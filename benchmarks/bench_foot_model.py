@@ -1,4 +1,4 @@
-"""Foot model speed on this machine: forward (shape + pose + skinning), IK, canonicalisation, measurement.
+"""Foot model on this machine: speed (forward, IK, canonicalisation, measurement) and skinning quality.
 
 Run: ``python benchmarks/bench_foot_model.py`` (or ``python -m benchmarks bench_foot_model``).
 """
@@ -76,6 +76,43 @@ def main(argv: list[str] | None = None) -> None:
     for name, ms, per in rows:
         print(f"{name:<36} {ms:>10.2f} {per:>10.3f}")
     print("(no published number to compare with: the thesis gives no foot-model timings)")
+    skinning_quality(dmodel, rng)
+
+
+def skinning_quality(model: FootModel, rng: np.random.Generator, n: int = 500) -> None:
+    """How posing deforms the mesh: edge stretch and folded faces over random shapes and poses."""
+    faces = model.faces_left.numpy()
+    pairs = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
+    edges = np.unique(np.sort(pairs, axis=1), axis=0)
+
+    def normals(v: np.ndarray) -> np.ndarray:
+        t = v[:, faces]
+        return np.cross(t[:, :, 1] - t[:, :, 0], t[:, :, 2] - t[:, :, 0])
+
+    print(
+        f"\nskinning quality over {n} random shapes per pose distribution (issue 2: no degenerate faces, stretch < 30%)"
+    )
+    print(
+        f"{'poses':<10} {'edges within 30%':>17} {'p99 |stretch-1|':>16} {'max stretch':>12} "
+        f"{'folded faces':>13} {'poses with a fold':>18} {'min area ratio':>15}"
+    )
+    for method in ("natural", "ik"):
+        shape = torch.from_numpy(rng.normal(size=(n, model.num_components)))
+        with torch.no_grad():
+            rest = model(shape)
+            angles = sample_poses(rest.rest_joints, rng, n, method=method)
+            posed = model(shape, angles).vertices.numpy()
+        rest_v = rest.vertices.numpy()
+        length = lambda v: np.linalg.norm(v[:, edges[:, 0]] - v[:, edges[:, 1]], axis=2)  # noqa: E731
+        stretch = length(posed) / length(rest_v)
+        n_rest, n_posed = normals(rest_v), normals(posed)
+        folded = (n_rest * n_posed).sum(axis=2) < 0
+        area = np.linalg.norm(n_posed, axis=2) / np.linalg.norm(n_rest, axis=2)
+        print(
+            f"{method:<10} {100 * (np.abs(stretch - 1) < 0.3).mean():>16.2f}% "
+            f"{np.quantile(np.abs(stretch - 1), 0.99):>16.3f} {stretch.max():>12.2f} "
+            f"{100 * folded.mean():>12.3f}% {100 * folded.any(axis=1).mean():>17.1f}% {area.min():>15.3f}"
+        )
 
 
 if __name__ == "__main__":
