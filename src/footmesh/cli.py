@@ -22,6 +22,7 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True)
     _add_model_commands(sub)
     _add_demo_command(sub)
+    _add_synth_command(sub)
     return parser
 
 
@@ -29,9 +30,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _add_demo_command(sub: argparse._SubParsersAction) -> None:
-    demo = sub.add_parser(
-        "demo", help="sample, pose, canonicalise and measure a foot; write OBJ, JSON and PNG"
-    )
+    demo = sub.add_parser("demo", help="sample, pose, canonicalise and measure a foot; write OBJ, JSON and PNG")
     demo.add_argument("--out", default="demo_out", help="output folder (default: demo_out)")
     demo.add_argument("--seed", type=int, default=0, help="random seed (default: 0)")
     demo.add_argument("--side", choices=("left", "right"), default="left")
@@ -126,15 +125,14 @@ def _add_model_register_commands(model_sub: argparse._SubParsersAction) -> None:
 
 
 def _run_model_register(args: argparse.Namespace) -> int:
-    import trimesh
-
     from footmesh.model.assets import load_asset
     from footmesh.model.build_scans import BuildConfig, register_scan_file
+    from footmesh.report import write_mesh
 
     template = load_asset(args.template)
     cfg = BuildConfig(unit=args.unit, use_prior=not args.no_prior)
     res = register_scan_file(args.scan, template, args.markers, cfg)
-    trimesh.Trimesh(res.vertices, res.faces, process=False).export(args.out)
+    write_mesh(args.out, res.vertices, res.faces)
     log.info(
         "registered %s in %.1f s (init: %s): mean distance to the scan %.3f mm, %d folded faces; wrote %s",
         args.scan,
@@ -160,6 +158,65 @@ def _run_model_build(args: argparse.Namespace) -> int:
     if summary.asset is None:
         raise UserError(f"{summary.succeeded} scans registered; a model needs at least 2, nothing written")
     print(f"wrote {summary.out}: {summary.asset!r}")
+    return 0
+
+
+# --- footmesh synth (issue 4: synthetic images with full ground truth) ----------------------------------------
+
+
+def _add_synth_command(sub: argparse._SubParsersAction) -> None:
+    synth = sub.add_parser("synth", help="render synthetic foot images with full ground truth, in shards")
+    synth.add_argument("--out", required=True, help="dataset folder (or, with --preview, the sheet .png)")
+    synth.add_argument("--n", type=int, default=None, help="number of samples of the whole dataset")
+    synth.add_argument("--size", type=int, default=224, help="image size in pixels (default 224)")
+    synth.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    synth.add_argument("--shards", type=int, default=1, help="number of shards K (default 1)")
+    synth.add_argument("--shard-index", type=int, default=0, help="this shard's index I in 0..K-1 (default 0)")
+    synth.add_argument("--views", choices=("random", "thesis"), default="random", help="camera views")
+    synth.add_argument(
+        "--reference", choices=("none", "a4", "card", "marker", "mixed"), default="mixed", help="reference object"
+    )
+    synth.add_argument("--workers", type=int, default=1, help="rendering processes (default 1)")
+    synth.add_argument("--preview", type=int, metavar="N", help="write a contact sheet of N samples to --out")
+    synth.add_argument("--no-progress", action="store_true", help="no progress bar")
+    synth.set_defaults(func=_run_synth)
+
+
+def _run_synth(args: argparse.Namespace) -> int:
+    from footmesh.synth.scene import SynthConfig
+
+    config = SynthConfig(size=args.size, views=args.views, reference=args.reference)
+    if args.workers < 1:
+        raise UserError(f"--workers must be at least 1, got {args.workers}")
+    if args.preview is not None:
+        from footmesh.synth.preview import write_preview
+        from footmesh.synth.render import Renderer
+
+        if not 1 <= args.preview <= 400:
+            raise UserError(f"--preview must be 1..400 samples, got {args.preview}")
+        if not args.out.lower().endswith(".png"):
+            raise UserError(f"with --preview, --out is the contact sheet and must end in .png, got {args.out}")
+        renderer = Renderer(config)
+        write_preview(args.out, [renderer.render(args.seed, i) for i in range(args.preview)])
+        log.info("wrote %s (%d samples, seed %d)", args.out, args.preview, args.seed)
+        return 0
+    if args.n is None or args.n < 1:
+        raise UserError("--n must be given and at least 1 (the number of samples of the whole dataset)")
+    if args.shards < 1 or not 0 <= args.shard_index < args.shards:
+        raise UserError(f"--shard-index must be in 0..{args.shards - 1} for --shards {args.shards}")
+    from footmesh.synth.dataset import generate
+
+    written = generate(
+        args.out,
+        args.n,
+        args.seed,
+        config,
+        args.shards,
+        args.shard_index,
+        workers=args.workers,
+        progress=not args.no_progress,
+    )
+    log.info("wrote %d chunk files into %s (shard %d of %d)", len(written), args.out, args.shard_index, args.shards)
     return 0
 
 

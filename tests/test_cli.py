@@ -1,0 +1,45 @@
+"""The command line: ``main(argv) -> exit code``; real runs, and one clear line for bad input."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+import trimesh
+
+from footmesh.cli import main
+
+
+def test_demo_writes_meshes_json_and_picture(tmp_path, capsys):
+    out = tmp_path / "demo"
+    assert main(["demo", "--out", str(out), "--seed", "3", "--side", "right"]) == 0
+    result = json.loads((out / "result.json").read_text())
+    assert result["side"] == "right"
+    measured = {k: v["value_mm"] for k, v in result["measurements"].items()}
+    for name, expected in result["expected_measurements_mm"].items():
+        assert measured[name] == pytest.approx(expected, abs=0.5), name
+    assert 200 < measured["stick_length"] < 320
+    assert result["sizes"]["eu"]["label"].startswith("EU ")
+    posed = trimesh.load(out / "posed.obj", process=False)
+    canonical = trimesh.load(out / "canonical.obj", process=False)
+    assert posed.is_watertight and canonical.is_watertight
+    assert posed.volume > 0 and canonical.volume > 0  # right foot re-wound: normals still outwards
+    assert np.asarray(result["joints3d_mm"]).shape == (18, 3)
+    assert (out / "foot.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert "stick_length" in capsys.readouterr().out
+    assert not list(out.glob(".*"))  # no temporary files left behind
+
+
+def test_missing_find_folder_is_one_clear_line(tmp_path, capsys):
+    code = main(["model", "build-from-find", "--find", str(tmp_path / "nowhere"), "--out", str(tmp_path / "m.npz")])
+    err = capsys.readouterr().err
+    assert code == 2
+    assert "nowhere" in err and "Traceback" not in err
+    assert not (tmp_path / "m.npz").exists()
+
+
+def test_unknown_command_exits_non_zero():
+    with pytest.raises(SystemExit) as exc:
+        main(["no-such-command"])
+    assert exc.value.code != 0
