@@ -195,9 +195,7 @@ def test_nan_vertices():
 
 def test_nan_landmark():
     with pytest.raises(ValueError, match="NaN"):
-        FootLandmarks(
-            midfoot=[np.nan, 0, 0], mtp1=[0, 0, 0], toe1_distal=[0, 0, 0], mtp5=[0, 0, 0], ankle=[0, 0, 0]
-        )
+        FootLandmarks(midfoot=[np.nan, 0, 0], mtp1=[0, 0, 0], toe1_distal=[0, 0, 0], mtp5=[0, 0, 0], ankle=[0, 0, 0])
 
 
 @pytest.mark.parametrize("bad", ["vertices", "faces_shape", "faces_range", "faces_float"])
@@ -259,9 +257,7 @@ def test_to_dict_ratios_unscaled_uncertainty():
     assert d["stick_length"] == {"value_mm": pytest.approx(250.0), "uncertainty_mm": None}
     r = m.ratios()
     assert r["ball_width/stick_length"] == pytest.approx(95 / 250)
-    assert r["instep_girth/ball_girth"] == pytest.approx(
-        box_expected()["instep_girth"] / box_expected()["ball_girth"]
-    )
+    assert r["instep_girth/ball_girth"] == pytest.approx(box_expected()["instep_girth"] / box_expected()["ball_girth"])
     u = m.as_unscaled()
     assert not u.scaled and all(x["value_mm"] is None for x in u.to_dict().values())
     assert u.ratios() == r

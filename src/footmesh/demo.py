@@ -82,9 +82,7 @@ def run_demo(out_dir: str | Path, config: DemoConfig = DemoConfig()) -> dict:
     }
     report.write_json(out / "result.json", result)
     print(format_table(measured, expected, sizes.labels()))
-    print(
-        f"\nwrote {out}/result.json, posed.obj, canonical.obj, foot.png ({elapsed:.2f} s to canonicalise+measure)"
-    )
+    print(f"\nwrote {out}/result.json, posed.obj, canonical.obj, foot.png ({elapsed:.2f} s to canonicalise+measure)")
     return result
 
 

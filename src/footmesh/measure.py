@@ -153,9 +153,7 @@ class Measurements:
         """Copy with the given uncertainties (mm, one standard deviation) attached; unknown names raise."""
         unknown = set(uncertainty_mm) - set(MEASUREMENT_NAMES)
         if unknown:
-            raise ValueError(
-                f"unknown measurement names {sorted(unknown)}; expected some of {MEASUREMENT_NAMES}"
-            )
+            raise ValueError(f"unknown measurement names {sorted(unknown)}; expected some of {MEASUREMENT_NAMES}")
         changes = {}
         for name, u in uncertainty_mm.items():
             m = getattr(self, name)
@@ -316,9 +314,7 @@ def convex_perimeter(points_2d: np.ndarray, what: str = "section") -> float:
     try:
         hull = ConvexHull(p)
     except QhullError as err:
-        raise ValueError(
-            f"{what}: the section is degenerate (collinear points), cannot take a girth"
-        ) from err
+        raise ValueError(f"{what}: the section is degenerate (collinear points), cannot take a girth") from err
     return float(hull.area)  # in 2D, ConvexHull.area is the perimeter
 
 
@@ -361,9 +357,7 @@ def measure_foot(
     v = _check_vertices(vertices)
     f = _check_faces(faces, len(v))
     if not isinstance(landmarks, FootLandmarks):
-        raise ValueError(
-            f"landmarks must be a FootLandmarks (FootLandmarks.from_joints), got {type(landmarks)}"
-        )
+        raise ValueError(f"landmarks must be a FootLandmarks (FootLandmarks.from_joints), got {type(landmarks)}")
     if side not in ("left", "right"):
         raise ValueError(f"side must be 'left' or 'right', got {side!r}")
     if side == "right":  # measure the mirror image, a left foot (docs/conventions.md)
@@ -383,9 +377,7 @@ def measure_foot(
     # Heel width: y-extent of the section x = 18 % L, below the malleoli.
     x_heel = heel_x + HEEL_WIDTH_FRACTION * length
     heel = plane_section(mesh, np.array([x_heel, 0.0, 0.0]), x_axis, HEEL_WIDTH_MAX_HEIGHT * ankle_z)
-    heel = _require(
-        heel, "heel width", f"x = {x_heel:.1f} mm below z = {HEEL_WIDTH_MAX_HEIGHT * ankle_z:.1f} mm"
-    )
+    heel = _require(heel, "heel width", f"x = {x_heel:.1f} mm below z = {HEEL_WIDTH_MAX_HEIGHT * ankle_z:.1f} mm")
     heel_width = float(np.ptp(heel[..., 1]))
 
     # Toe height: highest point of the section through the big toe's IP joint, near that joint in y.
@@ -393,9 +385,7 @@ def measure_foot(
     toe = plane_section(mesh, ip, x_axis, leg_z)
     half = TOE_HALF_WIDTH_FRACTION * length
     toe = clip_segments(clip_segments(toe, y_axis, ip[1] + half), -y_axis, -(ip[1] - half))
-    toe = _require(
-        toe, "toe height", f"x = {ip[0]:.1f} mm within {half:.1f} mm of the big toe (y = {ip[1]:.1f})"
-    )
+    toe = _require(toe, "toe height", f"x = {ip[0]:.1f} mm within {half:.1f} mm of the big toe (y = {ip[1]:.1f})")
     toe_height = float(toe[..., 2].max())
 
     # Arch height: lowest surface point on the vertical line x = midfoot, y = first MTP joint.
@@ -480,9 +470,7 @@ def _check_faces(faces: np.ndarray, num_vertices: int) -> np.ndarray:
             raise ValueError("faces must be integer vertex indices")
         f = f.astype(np.int64)
     if f.min() < 0 or f.max() >= num_vertices:
-        raise ValueError(
-            f"faces index vertices outside [0, {num_vertices - 1}]: min {f.min()}, max {f.max()}"
-        )
+        raise ValueError(f"faces index vertices outside [0, {num_vertices - 1}]: min {f.min()}, max {f.max()}")
     return f.astype(np.int64)
 
 
@@ -506,9 +494,7 @@ def _check_frame(v: np.ndarray, landmarks: FootLandmarks, side: Side) -> None:
         )
     low = v[v[:, 2] <= FOOT_HEIGHT_FRACTION * np.ptp(v[:, 0])]
     if np.ptp(low[:, 1]) > np.ptp(low[:, 0]):
-        raise ValueError(
-            "the foot is wider (y) than long (x): the mesh is not in the foot frame (x heel->toe)"
-        )
+        raise ValueError("the foot is wider (y) than long (x): the mesh is not in the foot frame (x heel->toe)")
     pts = np.stack([getattr(landmarks, f.name) for f in fields(landmarks)])
     margin = 0.1 * length
     if (pts < v.min(axis=0) - margin).any() or (pts > v.max(axis=0) + margin).any():

@@ -148,9 +148,7 @@ def shoe_sizes(length_mm: float | None, ball_width_mm: float | None = None) -> S
     lo, hi = FOOT_LENGTH_RANGE_MM
     if not math.isfinite(length) or not lo <= length <= hi:
         hint = " (metres? give millimetres)" if 0 < length < 1 else ""
-        raise ValueError(
-            f"foot length {length_mm!r} is not a foot length in mm in [{lo:.0f}, {hi:.0f}]{hint}"
-        )
+        raise ValueError(f"foot length {length_mm!r} is not a foot length in mm in [{lo:.0f}, {hi:.0f}]{hint}")
     width = None
     if ball_width_mm is not None:
         width = float(ball_width_mm)

@@ -58,9 +58,7 @@ def draw_mesh(
     facing = normal[:, 2] > 0
     light = np.array([0.3, 0.5, 0.81])
     shade = 0.35 + 0.65 * np.clip(normal @ light, 0.0, 1.0)
-    base = (
-        vertex_colours[faces].mean(axis=1) if vertex_colours is not None else np.tile(colour, (len(faces), 1))
-    )
+    base = vertex_colours[faces].mean(axis=1) if vertex_colours is not None else np.tile(colour, (len(faces), 1))
     rgb = np.clip(base * shade[:, None], 0.0, 1.0)
     order = np.argsort(tri[:, :, 2].mean(axis=1))
     order = order[facing[order]]

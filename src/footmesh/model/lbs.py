@@ -15,9 +15,7 @@ _DOF_JOINT = torch.tensor([d.joint for d in sk.DOFS])
 _DOF_IS_Z = torch.tensor([d.axis == "z" for d in sk.DOFS])
 
 
-def blend_shapes(
-    shape: torch.Tensor, mean: torch.Tensor, components: torch.Tensor, sd: torch.Tensor
-) -> torch.Tensor:
+def blend_shapes(shape: torch.Tensor, mean: torch.Tensor, components: torch.Tensor, sd: torch.Tensor) -> torch.Tensor:
     """Shaped rest vertices ``v_shaped = mean + sum_k shape_k * sd_k * components_k``.
 
     Args:

@@ -245,9 +245,7 @@ def _vertical_hits(mesh, x: float, y: float) -> tuple[np.ndarray, np.ndarray]:
     top_z = mesh.vertices[:, 2].max() + 10.0
     hits = _ray_hits(mesh, np.array([x, y, top_z]), np.array([0.0, 0.0, -1.0]))
     if len(hits) < 2:
-        raise ValueError(
-            f"vertical line at x={x:.1f}, y={y:.1f} mm misses the foot; is it in the foot frame?"
-        )
+        raise ValueError(f"vertical line at x={x:.1f}, y={y:.1f} mm misses the foot; is it in the foot frame?")
     bottom = hits[-1]
     # the surface right above the sole at this (x, y): the last downward hit before the bottom that enters
     top = hits[-2]

@@ -1,0 +1,286 @@
+"""Synthetic datasets on disk: chunk files written by independent shards, and a torch ``Dataset`` over them.
+
+Layout of a dataset folder::
+
+    meta.json                 generator settings, n, seed, version (identical from every shard)
+    chunk-000000.npz          samples [0, CHUNK), chunk c holds [c * CHUNK, min((c + 1) * CHUNK, n))
+    chunk-000001.npz          ...
+
+Sharding: shard I of K writes the chunks c with ``c % K == I``. The files do not depend on K: the same
+(seed, n, settings) gives the same folder, byte for byte, however many machines wrote it. A chunk is written
+atomically once complete; a rerun skips the chunks already there (resumable).
+
+A chunk file is an ``.npz`` with one member per sample and key, ``"{index:09d}/{key}"`` (so one sample is read
+without decompressing its neighbours), plus ``"index"`` (the global indices it holds). Keys and units of a sample
+(camera frame = OpenCV, mm; pixels with the centre of the top-left pixel at (0, 0)):
+
+=====================  ===================  ===========================================================
+key                    shape, dtype         meaning
+=====================  ===================  ===========================================================
+rgb                    (S, S, 3) uint8      the image
+depth                  (S, S) uint16        sensor depth, mm, 0 = missing (``render.depth_noise``)
+depth_clean            (S, S) float32       exact camera z of the front surface, mm, 0 = none
+silhouette             (S, S) bool          pixels whose front surface is the foot (not the leg)
+labels                 (S, S) uint8         0 floor/background, 1 foot, 2 leg, 3 reference object
+joints2d               (18, 2) float32      projected joints, px
+joints_visible         (18,) bool           in the image and not hidden (``render._visible``)
+joints3d               (18, 3) float32      joints, camera frame, mm
+vertices               (V, 3) float32       foot mesh vertices, camera frame, mm (faces: ``model.faces(side)``)
+shape                  (K,) float32         PCA coefficients, SD units
+angles                 (22,) float32        joint angles, radians, ``skeleton.DOF_NAMES`` order
+side                   () int8              0 left, 1 right
+K                      (3, 3) float64       intrinsics, px
+cam_from_foot          (4, 4) float64       foot frame -> camera: ``vertices = R @ model(...) + t``
+cam_from_scene         (4, 4) float64       scene (floor z = 0) frame -> camera
+ref_type               () int8              0 none, 1 a4, 2 card, 3 marker (``scene.REFERENCE_KINDS``)
+ref_corners3d          (4, 3) float32       reference rectangle corners, camera frame, mm (NaN if none)
+ref_corners2d          (4, 2) float32       their projections, px (NaN if none)
+ref_corners_visible    (4,) bool            in the image and not hidden
+view_id                () int16             thesis viewpoint 0..21, -1 for a random view
+lifted                 () bool              the foot is lifted off the floor
+index                  () int64             global sample index
+=====================  ===================  ===========================================================
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import os
+import tempfile
+import zipfile
+from collections.abc import Callable, Iterable
+from dataclasses import asdict
+from pathlib import Path
+
+import numpy as np
+from torch.utils.data import Dataset
+
+from footmesh import __version__
+from footmesh.synth.scene import SynthConfig
+
+CHUNK = 256
+"""Samples per chunk file."""
+META = "meta.json"
+ZIP_DATE_TIME = (1980, 1, 1, 0, 0, 0)
+COMPRESS_LEVEL = 1
+"""zlib level of the chunk files: 1 is several times faster than the default 6 and barely larger here."""
+
+
+def chunk_name(chunk: int) -> str:
+    return f"chunk-{chunk:06d}.npz"
+
+
+def sample_key(index: int, key: str) -> str:
+    return f"{index:09d}/{key}"
+
+
+def shard_chunks(n: int, shards: int, shard_index: int, chunk: int = CHUNK) -> list[int]:
+    """Chunk numbers that shard ``shard_index`` of ``shards`` writes for ``n`` samples."""
+    if n < 1:
+        raise ValueError(f"n must be at least 1, got {n}")
+    if shards < 1 or not 0 <= shard_index < shards:
+        raise ValueError(f"shard index must be in 0..{shards - 1} for {shards} shards, got {shard_index}")
+    n_chunks = -(-n // chunk)
+    return [c for c in range(n_chunks) if c % shards == shard_index]
+
+
+def chunk_indices(c: int, n: int, chunk: int = CHUNK) -> range:
+    return range(c * chunk, min((c + 1) * chunk, n))
+
+
+def write_chunk(path: str | os.PathLike, samples: Iterable[dict[str, np.ndarray]]) -> None:
+    """Write samples into one chunk ``.npz`` atomically, with reproducible bytes (fixed member dates)."""
+    p = Path(path)
+    p.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=p.parent, prefix=f".{p.name}.", suffix=".tmp")
+    try:
+        with (
+            os.fdopen(fd, "wb") as fh,
+            zipfile.ZipFile(fh, "w", compression=zipfile.ZIP_DEFLATED, compresslevel=COMPRESS_LEVEL) as zf,
+        ):
+            indices = []
+            for sample in samples:
+                index = int(sample["index"])
+                indices.append(index)
+                for key, value in sample.items():
+                    _write_member(zf, sample_key(index, key), value)
+            _write_member(zf, "index", np.asarray(indices, dtype=np.int64))
+        os.chmod(tmp, 0o644)
+        os.replace(tmp, p)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def _write_member(zf: zipfile.ZipFile, name: str, value: np.ndarray) -> None:
+    buffer = io.BytesIO()
+    np.lib.format.write_array(buffer, np.asanyarray(value), allow_pickle=False)
+    info = zipfile.ZipInfo(f"{name}.npy", date_time=ZIP_DATE_TIME)
+    info.compress_type = zipfile.ZIP_DEFLATED
+    info.external_attr = 0o644 << 16
+    zf.writestr(info, buffer.getvalue(), compresslevel=COMPRESS_LEVEL)
+
+
+def make_meta(config: SynthConfig, n: int, seed: int, chunk: int = CHUNK) -> dict:
+    return {"format": "footmesh-synth-1", "n": n, "seed": seed, "chunk": chunk, "config": asdict(config)}
+
+
+def check_meta(out: Path, meta: dict) -> None:
+    """Write ``meta.json``, or check that the one there describes the same dataset (no mixed settings)."""
+    path = out / META
+    if path.is_file():
+        old = json.loads(path.read_text())
+        old_cmp = {k: v for k, v in old.items() if k != "version"}
+        if json.loads(json.dumps(meta)) != old_cmp:
+            raise ValueError(f"{out} holds a dataset made with other settings ({path}); use another --out")
+        return
+    from footmesh.report import write_json
+
+    write_json(path, {**meta, "version": __version__})
+
+
+def generate(
+    out: str | os.PathLike,
+    n: int,
+    seed: int = 0,
+    config: SynthConfig | None = None,
+    shards: int = 1,
+    shard_index: int = 0,
+    workers: int = 1,
+    progress: bool = True,
+    chunk: int = CHUNK,
+) -> list[Path]:
+    """Write this shard's chunks of a dataset into ``out``; complete chunks already there are skipped.
+
+    Returns:
+        the chunk files written by this call.
+    """
+    config = config or SynthConfig()
+    out_dir = Path(out)
+    chunks = shard_chunks(n, shards, shard_index, chunk)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    check_meta(out_dir, make_meta(config, n, seed, chunk))
+    todo = [c for c in chunks if not (out_dir / chunk_name(c)).is_file()]
+    total = sum(len(chunk_indices(c, n, chunk)) for c in todo)
+    from tqdm import tqdm
+
+    written = []
+    with tqdm(total=total, unit="sample", disable=not progress, desc=f"shard {shard_index}/{shards}") as bar:
+        render = _renderer_pool(config, seed, workers)
+        try:
+            for c in todo:
+                samples = []
+                for sample in render.map(list(chunk_indices(c, n, chunk))):
+                    samples.append(sample)
+                    bar.update(1)
+                write_chunk(out_dir / chunk_name(c), samples)
+                written.append(out_dir / chunk_name(c))
+        finally:
+            render.close()
+    return written
+
+
+class _renderer_pool:  # noqa: N801 (a small callable helper)
+    """``map(indices) -> samples in order``, in this process or in ``workers`` processes."""
+
+    def __init__(self, config: SynthConfig, seed: int, workers: int) -> None:
+        self.seed = seed
+        self.pool = None
+        if workers > 1:
+            import multiprocessing as mp
+
+            self.pool = mp.get_context("spawn").Pool(workers, initializer=_init_worker, initargs=(config,))
+        else:
+            _init_worker(config)
+
+    def map(self, indices: list[int]) -> Iterable[dict[str, np.ndarray]]:
+        args = [(self.seed, i) for i in indices]
+        if self.pool is None:
+            return map(_render_one, args)
+        return self.pool.imap(_render_one, args, chunksize=4)
+
+    def close(self) -> None:
+        if self.pool is not None:
+            self.pool.close()
+            self.pool.join()
+
+
+_WORKER_RENDERER = None
+
+
+def _init_worker(config: SynthConfig) -> None:
+    global _WORKER_RENDERER
+    from threadpoolctl import threadpool_limits
+
+    from footmesh.synth.render import Renderer
+
+    threadpool_limits(1)
+    _WORKER_RENDERER = Renderer(config)
+
+
+def _render_one(args: tuple[int, int]) -> dict[str, np.ndarray]:
+    seed, index = args
+    return _WORKER_RENDERER.render(seed, index)
+
+
+class SynthDataset(Dataset):
+    """Random access to the samples of a dataset folder, as a ``torch.utils.data.Dataset``.
+
+    ``dataset[i]`` is the sample with global index ``self.indices[i]`` as a dict of numpy arrays (``keys`` to
+    read fewer). Indices are sorted, so with every chunk present ``dataset[i]`` is sample ``i``. Chunk files are
+    opened lazily per process (safe with ``DataLoader`` workers).
+    """
+
+    def __init__(
+        self,
+        root: str | os.PathLike,
+        keys: Iterable[str] | None = None,
+        transform: Callable[[dict[str, np.ndarray]], object] | None = None,
+    ) -> None:
+        self.root = Path(root)
+        if not self.root.is_dir():
+            raise FileNotFoundError(f"synthetic dataset folder not found: {self.root}")
+        files = sorted(self.root.glob("chunk-*.npz"))
+        if not files:
+            raise FileNotFoundError(f"no chunk-*.npz files in {self.root}; write some with `footmesh synth`")
+        self.files = files
+        self.keys = list(keys) if keys is not None else None
+        self.transform = transform
+        locations = []
+        for f_id, f in enumerate(files):
+            with np.load(f) as npz:
+                for index in npz["index"]:
+                    locations.append((int(index), f_id))
+        locations.sort()
+        self.indices = np.array([i for i, _ in locations], dtype=np.int64)
+        self._file_of = np.array([f for _, f in locations], dtype=np.int64)
+        self._open: dict[int, object] = {}
+        self._pid = os.getpid()
+        meta = self.root / META
+        self.meta = json.loads(meta.read_text()) if meta.is_file() else {}
+
+    def __len__(self) -> int:
+        return len(self.indices)
+
+    def __repr__(self) -> str:
+        return f"SynthDataset({self.root}, samples={len(self)}, chunks={len(self.files)})"
+
+    def __getitem__(self, i: int):
+        if not -len(self) <= i < len(self):
+            raise IndexError(f"sample {i} out of range for {len(self)} samples")
+        index, f_id = int(self.indices[i]), int(self._file_of[i])
+        npz = self._npz(f_id)
+        keys = self.keys
+        if keys is None:
+            prefix = f"{index:09d}/"
+            keys = self.keys = [k[len(prefix) :] for k in npz.files if k.startswith(prefix)]
+        sample = {k: npz[sample_key(index, k)] for k in keys}
+        return self.transform(sample) if self.transform is not None else sample
+
+    def _npz(self, f_id: int):
+        if os.getpid() != self._pid:  # forked into a DataLoader worker: do not share file handles
+            self._open, self._pid = {}, os.getpid()
+        if f_id not in self._open:
+            self._open[f_id] = np.load(self.files[f_id])
+        return self._open[f_id]

@@ -1,0 +1,508 @@
+"""Render one synthetic sample (RGB, depth, silhouette, labels) from its ``Scene``.
+
+Image formation (per sample, all in numpy, ``raster.rasterize`` for triangles):
+
+1. The foot model gives the posed foot (float64, one sample at a time so that batching never changes a bit);
+   the scene places it on the floor and grows a lower leg from its ankle cap.
+2. Supersampling: the mesh and the floor are evaluated on a ``(2S+1) x (2S+1)`` grid of samples at half-pixel
+   spacing whose odd samples are exactly the pixel centres. Depth, face ids, silhouette and labels come from the
+   pixel-centre samples (exact, not filtered); colour is filtered with the tent ``[1, 2, 1] / 4`` in each
+   direction (anti-aliasing with no shift of the image against its labels).
+3. Shading: Lambert (ambient + one directional light) on per-vertex normals (Gouraud); the floor gets the
+   foot's and leg's cast shadow (their projection along the light onto the floor, blurred into a penumbra) and a
+   soft contact shadow under the foot. The foot does not shadow itself (only ``n . l``).
+4. The floor (and a reference object lying on it) is exact ray-plane intersection, textured procedurally; it is
+   drawn only when the camera is above it. Rays missing the floor within ``FAR_MM`` see a plain wall (depth 0).
+5. Sensor noise: RGB gets Gaussian noise of ``RGB_NOISE`` (0..1 units); depth gets ``depth_noise``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+from scipy import ndimage, sparse
+
+from footmesh.model.layer import FootModel
+from footmesh.model.skin import SkinColours, load_skin_colours
+from footmesh.synth import raster, textures
+from footmesh.synth.scene import (
+    REFERENCE_KINDS,
+    Scene,
+    SynthConfig,
+    camera_pose,
+    intrinsics,
+    sample_angles,
+    sample_scene,
+    sample_skin,
+)
+
+FAR_MM = 4000.0
+"""Floor points farther than this from the camera (and rays that miss the floor) show the background wall."""
+DEPTH_RANGE_MM = (100.0, 3000.0)
+"""The simulated depth sensor's range; outside it the noisy depth is 0 (missing)."""
+DEPTH_NOISE_A_MM = 0.25
+DEPTH_NOISE_B_PER_MM = 1.5e-6
+"""Depth noise: ``sigma(z) = A + B z^2`` mm (structured light / stereo: error grows with distance squared)."""
+DEPTH_EDGE_JUMP = (10.0, 0.03)
+"""A pixel is on a depth edge when a 4-neighbour differs by more than max(10 mm, 3 % of its depth)."""
+DEPTH_EDGE_DROPOUT = 0.6
+DEPTH_RANDOM_DROPOUT = 0.002
+RGB_NOISE = 1.5 / 255
+JOINT_VISIBILITY_MARGIN_MM = 10.0
+"""A joint is visible when, within one pixel of its projection, the front surface is the foot and no more than
+(the joint's distance to the nearest vertex + this margin) in front of it. Inner joints lie under the skin."""
+REFERENCE_VISIBILITY_TOLERANCE_MM = 3.0
+LEG_SEGMENTS = 40
+LEG_RING_MM = 15.0
+LEG_UPRIGHT = 1.5
+"""The leg's axis is the ankle cap's normal plus this much of the vertical, normalised."""
+CAP_MIN_HEIGHT_MM = 100.0
+CAP_NORMAL_Z = 0.8
+"""The model's ankle cap: template vertices above this height whose normal points up this much."""
+
+LABEL_BACKGROUND, LABEL_FOOT, LABEL_LEG, LABEL_REFERENCE = 0, 1, 2, 3
+
+
+@dataclass(frozen=True)
+class Geometry:
+    """The posed scene's meshes in the scene frame (mm) with per-vertex albedo."""
+
+    foot_vertices: np.ndarray  # (V, 3)
+    foot_joints: np.ndarray  # (18, 3)
+    foot_faces: np.ndarray  # (F, 3)
+    foot_albedo: np.ndarray  # (V, 3)
+    leg_vertices: np.ndarray  # (L, 3)
+    leg_faces: np.ndarray  # (G, 3)
+    leg_albedo: np.ndarray  # (L, 3)
+    scene_from_foot: np.ndarray  # (4, 4)
+
+
+class Renderer:
+    """Renders samples of a ``SynthConfig``; holds the foot model and the skin colour model (read-only)."""
+
+    def __init__(self, config: SynthConfig, model: FootModel | None = None, skin: SkinColours | None = None) -> None:
+        self.config = config
+        self.model = (model if model is not None else FootModel()).double().eval()
+        self.skin = skin if skin is not None else load_skin_colours()
+        faces = self.model.faces_left.numpy()
+        self._faces = {"left": faces, "right": faces[:, [0, 2, 1]]}
+        mean = self.model.mean_vertices.numpy().astype(np.float64)
+        nv = len(mean)
+        rows = np.repeat(np.arange(len(faces)), 3)
+        # (V, F) vertex-face incidence: vertex normals = incidence @ face normals (area weighted)
+        self._incidence = sparse.csr_matrix((np.ones(rows.size), (faces.reshape(-1), rows)), shape=(nv, len(faces)))
+        normals = self._incidence @ _face_normals(mean, faces)
+        normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+        self.cap = np.flatnonzero((mean[:, 2] > CAP_MIN_HEIGHT_MM) & (normals[:, 2] > CAP_NORMAL_Z))
+        if len(self.cap) < 8:
+            raise ValueError(f"foot model: found only {len(self.cap)} ankle-cap vertices to grow the leg from")
+
+    def __repr__(self) -> str:
+        return f"Renderer(size={self.config.size}, views={self.config.views}, reference={self.config.reference})"
+
+    # --- geometry ------------------------------------------------------------------------------------------
+
+    def scene(self, seed: int, index: int) -> Scene:
+        return sample_scene(seed, index, self.config, self.model.num_components)
+
+    def geometry(self, scene: Scene) -> tuple[Geometry, np.ndarray]:
+        """Posed foot and leg in the scene frame, and the joint angles drawn."""
+        shape = torch.from_numpy(scene.shape)[None]
+        with torch.no_grad():
+            rest = self.model(shape)
+            angles = sample_angles(scene.seed, scene.index, scene.pose_method, rest.rest_joints[0])
+            out = self.model(shape, torch.from_numpy(angles)[None], side=scene.side)
+        verts, joints = out.vertices[0].numpy(), out.joints[0].numpy()
+        pitch, roll = scene.tilt
+        rot = _rot_y(pitch) @ _rot_x(roll)
+        moved = verts @ rot.T
+        scene_from_foot = np.eye(4)
+        scene_from_foot[:3, :3] = rot
+        scene_from_foot[2, 3] = scene.lift_mm - moved[:, 2].min()
+        verts = moved + scene_from_foot[:3, 3]
+        joints = joints @ rot.T + scene_from_foot[:3, 3]
+        albedo = sample_skin(scene.seed, scene.index, scene.skin_tone, self.skin)
+        leg_v, leg_f, leg_a = self._leg(scene, verts, albedo[self.cap].mean(axis=0))
+        geo = Geometry(verts, joints, self._faces[scene.side], albedo, leg_v, leg_f, leg_a, scene_from_foot)
+        return geo, angles
+
+    def _leg(self, scene: Scene, verts: np.ndarray, skin: np.ndarray) -> tuple[np.ndarray, ...]:
+        """A truncated elliptic cone from the ankle cap up to ``leg_top_mm`` above the floor (bare, sock, trouser)."""
+        cap = verts[self.cap]
+        centre = cap.mean(axis=0)
+        _, _, vt = np.linalg.svd(cap - centre, full_matrices=False)
+        normal = vt[2] if vt[2, 2] > 0 else -vt[2]
+        # the shin stays nearer upright than the cap turns with the ankle angle (the foot moves under the leg)
+        axis = normal + LEG_UPRIGHT * np.array([0.0, 0.0, 1.0])
+        axis /= np.linalg.norm(axis)
+        e1 = vt[0] - axis * (vt[0] @ axis)
+        e1 /= np.linalg.norm(e1)
+        e2 = np.cross(axis, e1)
+        a = np.abs((cap - centre) @ e1).max() * 1.02
+        b = np.abs((cap - centre) @ e2).max() * 1.02
+        length = float(np.clip((scene.leg_top_mm - centre[2]) / max(axis[2], 0.3), 150.0, 700.0))
+        band = min(scene.leg_band_mm, length - 20.0)
+        start = -8.0  # below the cap, so the cone overlaps the foot's sides and hides the seam
+
+        def width(h: float) -> float:
+            return 1.0 + 0.35 * (h - start) / (length - start)  # the calf widens upwards
+
+        leg_colour = np.asarray(scene.leg_colour)
+        pieces = []
+        if scene.leg_style == "trouser":
+            pieces.append(([start, band + 5], 1.0, skin, True))
+            pieces.append(([band, length], 1.3, leg_colour, True))
+            pieces.append(([band, length], 1.28, leg_colour * 0.6, False))  # inside of the hem
+        elif scene.leg_style == "sock":
+            pieces.append(([start, band], 1.03, leg_colour, False))
+            pieces.append(([band, length], 1.0, skin, True))
+        else:
+            pieces.append(([start, length], 1.0, skin, True))
+        vs, fs, cs, offset = [], [], [], 0
+        for heights, grow, colour, outward in pieces:
+            v, f = _tube(
+                centre, axis, e1, e2, a * grow, b * grow, heights, width, outward, cap_top=heights[1] == length
+            )
+            vs.append(v)
+            fs.append(f + offset)
+            cs.append(np.broadcast_to(np.clip(colour, 0, 1), v.shape))
+            offset += len(v)
+        return np.concatenate(vs), np.concatenate(fs), np.concatenate(cs)
+
+    # --- rendering -----------------------------------------------------------------------------------------
+
+    def render(self, seed: int, index: int) -> dict[str, np.ndarray]:
+        """One sample as a dict of arrays (see ``footmesh.synth.dataset.SAMPLE_KEYS`` for keys and units)."""
+        scene = self.scene(seed, index)
+        geo, angles = self.geometry(scene)
+        size = self.config.size
+        k = intrinsics(size, scene.fov_deg)
+        lo, hi = geo.foot_vertices.min(axis=0), geo.foot_vertices.max(axis=0)
+        centre = (lo + hi) / 2
+        radius = float(np.linalg.norm(hi - lo) / 2)
+        cam_from_scene = camera_pose(scene, centre, radius)
+        cam_from_foot = cam_from_scene @ geo.scene_from_foot
+        rng = np.random.default_rng(scene.noise_seed)
+
+        # supersampled grid: sample j sits at pixel coordinate j / 2 - 1/2 (odd j = pixel centres)
+        n_ss = 2 * size + 1
+        k_ss = k.copy()
+        k_ss[:2] *= 2.0
+        k_ss[:2, 2] += 1.0
+        rot, trans = cam_from_scene[:3, :3], cam_from_scene[:3, 3]
+        verts = np.concatenate([geo.foot_vertices, geo.leg_vertices])
+        faces = np.concatenate([geo.foot_faces, geo.leg_faces + len(geo.foot_vertices)])
+        n_foot_faces = len(geo.foot_faces)
+        v_cam = verts @ rot.T + trans
+        xy, z = raster.project(v_cam, k_ss)
+        frag = raster.rasterize(xy, z, faces, n_ss, n_ss)
+
+        light = scene.light_dir
+        normals = np.concatenate(
+            [self._vertex_normals(geo.foot_vertices, geo.foot_faces), _vertex_normals(geo.leg_vertices, geo.leg_faces)]
+        )
+        albedo = np.concatenate([geo.foot_albedo, geo.leg_albedo])
+        lambert = np.clip(normals @ light, 0.0, None)
+        sky = 0.8 + 0.2 * normals[:, 2]  # hemispheric ambient: surfaces facing down get a little less light
+        shade = (scene.ambient * sky)[:, None] + (scene.diffuse * lambert)[:, None] * scene.light_colour[None]
+        v_colour = albedo * shade
+
+        colour = np.zeros((n_ss * n_ss, 3))
+        face = frag.face.reshape(-1)
+        hit = face >= 0
+        tri = faces[face[hit]]  # (H, 3)
+        colour[hit] = np.einsum("hk,hkc->hc", frag.bary.reshape(-1, 3)[hit], v_colour[tri])
+
+        # floor, reference object and background: evaluated at the pixel centres (exact depth and labels), and
+        # upsampled bilinearly to the samples between them, where the mesh does not cover them
+        eye = -rot.T @ trans
+        jj, ii = np.meshgrid(np.arange(size, dtype=np.float64), np.arange(size, dtype=np.float64))
+        pix = np.stack([jj.ravel(), ii.ravel(), np.ones(size * size)], axis=1)
+        rays = pix @ np.linalg.inv(k).T @ rot  # scene-frame directions with camera z = 1
+        floor_rgb, floor_depth, ref_hit = self._floor(scene, geo, eye, rays)
+        floor_ss = _upsample2(floor_rgb.reshape(size, size, 3)).reshape(-1, 3)
+        colour[~hit] = floor_ss[~hit]
+        colour = colour.reshape(n_ss, n_ss, 3)
+        rgb = 0.25 * colour[:-1:2] + 0.5 * colour[1::2] + 0.25 * colour[2::2]
+        rgb = 0.25 * rgb[:, :-1:2] + 0.5 * rgb[:, 1::2] + 0.25 * rgb[:, 2::2]
+        rgb = rgb + rng.normal(0.0, RGB_NOISE, rgb.shape)
+        rgb = np.clip(np.round(rgb * 255.0), 0, 255).astype(np.uint8)
+
+        # labels at pixel centres (odd samples)
+        centre_face = frag.face[1::2, 1::2]
+        mesh_depth = frag.depth[1::2, 1::2]
+        floor_depth = floor_depth.reshape(size, size)
+        depth = np.where(centre_face >= 0, mesh_depth, np.where(np.isfinite(floor_depth), floor_depth, 0.0))
+        labels = np.where(ref_hit.reshape(size, size), LABEL_REFERENCE, LABEL_BACKGROUND).astype(np.uint8)
+        labels[centre_face >= 0] = LABEL_LEG
+        labels[(centre_face >= 0) & (centre_face < n_foot_faces)] = LABEL_FOOT
+        silhouette = labels == LABEL_FOOT
+
+        v_foot_cam = geo.foot_vertices @ rot.T + trans
+        j_cam = geo.foot_joints @ rot.T + trans
+        j2d, jz = raster.project(j_cam, k)
+        tol = np.sqrt(((geo.foot_joints[:, None] - geo.foot_vertices[None]) ** 2).sum(-1)).min(axis=1)
+        j_vis = _visible(j2d, jz, silhouette, depth, tol + JOINT_VISIBILITY_MARGIN_MM)
+
+        ref_kind = scene.reference.kind if scene.reference is not None else "none"
+        ref3d = np.full((4, 3), np.nan)
+        ref2d = np.full((4, 2), np.nan)
+        ref_vis = np.zeros(4, dtype=bool)
+        if scene.reference is not None:
+            ref3d = scene.reference.corners() @ rot.T + trans
+            ref2d, rz = raster.project(ref3d, k)
+            if eye[2] > 0:
+                ref_vis = _visible(ref2d, rz, depth > 0, depth, np.full(4, REFERENCE_VISIBILITY_TOLERANCE_MM))
+
+        return {
+            "index": np.int64(index),
+            "rgb": rgb,
+            "depth": depth_noise(depth, rng),
+            "depth_clean": depth.astype(np.float32),
+            "silhouette": silhouette,
+            "labels": labels,
+            "joints2d": j2d.astype(np.float32),
+            "joints_visible": j_vis,
+            "joints3d": j_cam.astype(np.float32),
+            "vertices": v_foot_cam.astype(np.float32),
+            "shape": scene.shape.astype(np.float32),
+            "angles": angles.astype(np.float32),
+            "side": np.int8(scene.side == "right"),
+            "K": k,
+            "cam_from_foot": cam_from_foot,
+            "cam_from_scene": cam_from_scene,
+            "ref_type": np.int8(REFERENCE_KINDS.index(ref_kind)),
+            "ref_corners3d": ref3d.astype(np.float32),
+            "ref_corners2d": ref2d.astype(np.float32),
+            "ref_corners_visible": ref_vis,
+            "view_id": np.int16(scene.view_id),
+            "lifted": np.bool_(scene.lifted),
+        }
+
+    def _vertex_normals(self, verts: np.ndarray, faces: np.ndarray) -> np.ndarray:
+        n = self._incidence @ _face_normals(verts, faces)
+        return n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
+
+    def _floor(
+        self, scene: Scene, geo: Geometry, eye: np.ndarray, rays: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Colour (N, 3), camera depth (N,) (inf = none) and reference-object mask (N,) along scene-frame rays.
+
+        ``rays`` have camera z = 1, so the ray parameter at the floor is the camera depth.
+        """
+        n = len(rays)
+        depth = np.full(n, np.inf)
+        ref_hit = np.zeros(n, dtype=bool)
+        unit_z = rays[:, 2] / np.linalg.norm(rays, axis=1)
+        colour = textures.background_colour(unit_z, scene.floor.salt)
+        if eye[2] <= 0:  # the camera is under the floor: the floor is one-sided and not seen
+            return colour * (scene.ambient + 0.5 * scene.diffuse), depth, ref_hit
+        with np.errstate(divide="ignore"):
+            t = np.where(rays[:, 2] < 0, -eye[2] / rays[:, 2], np.inf)
+        on = np.flatnonzero(t * np.linalg.norm(rays, axis=1) < FAR_MM)
+        depth[on] = t[on]
+        x = eye[0] + t[on] * rays[on, 0]
+        y = eye[1] + t[on] * rays[on, 1]
+        albedo = textures.floor_colour(scene.floor, x, y)
+        ref = scene.reference
+        if ref is not None:
+            u, v = ref.to_local(x, y)
+            inside, ref_colour = textures.reference_colour(ref.kind, u, v, ref.tint, ref.salt)
+            albedo[inside] = ref_colour[inside]
+            ref_hit[on[inside]] = True
+        light = scene.light_dir
+        shadow = self._floor_shadow(geo, light, x, y)
+        contact = self._contact_shadow(geo, x, y)
+        lit = (scene.ambient * (1.0 - contact))[:, None] + (scene.diffuse * light[2] * (1.0 - shadow))[
+            :, None
+        ] * scene.light_colour[None]
+        colour[on] = albedo * lit
+        off = np.ones(n, dtype=bool)
+        off[on] = False
+        colour[off] *= scene.ambient + 0.5 * scene.diffuse
+        return colour, depth, ref_hit
+
+    def _floor_shadow(self, geo: Geometry, light: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        """Cast shadow of foot and leg on the floor, 0..1: their projection along the light, blurred."""
+        verts = np.concatenate([geo.foot_vertices, geo.leg_vertices])
+        faces = np.concatenate([geo.foot_faces, geo.leg_faces + len(geo.foot_vertices)])
+        flat = verts[:, :2] - verts[:, 2:3] * (light[:2] / light[2])[None]
+        # a closed surface's shadow is that of its faces turned to the light: counter-clockwise on the floor seen
+        # from above, which the rasteriser (y-down convention) keeps after re-winding
+        faces = faces[:, [0, 2, 1]]
+        return _coverage_lookup(flat, np.ones(len(flat)), faces, x, y, texel=3.0, blur_mm=4.0, mode="cover")
+
+    def _contact_shadow(self, geo: Geometry, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        """Ambient occlusion under the foot, 0..0.6: strong where the sole is close to the floor, blurred."""
+        v = geo.foot_vertices
+        # the faces seen from below (the sole side) are clockwise seen from above: kept as they are
+        occ = _coverage_lookup(v[:, :2], v[:, 2], geo.foot_faces, x, y, texel=3.0, blur_mm=10.0, mode="height")
+        return 0.6 * occ
+
+
+def _coverage_lookup(
+    flat: np.ndarray,
+    height: np.ndarray,
+    faces: np.ndarray,
+    x: np.ndarray,
+    y: np.ndarray,
+    texel: float,
+    blur_mm: float,
+    mode: str,
+) -> np.ndarray:
+    """Rasterise triangles flattened onto the floor into a small map, blur it, and read it at floor points.
+
+    ``mode="cover"``: 1 where covered. ``mode="height"``: ``exp(-h / 25 mm)`` of the lowest surface height h.
+    """
+    pad = 4 * blur_mm
+    lo = flat.min(axis=0) - pad
+    hi = flat.max(axis=0) + pad
+    w, h = (np.ceil((hi - lo) / texel).astype(int) + 1).tolist()
+    if w * h > 2_000_000:  # a grazing light stretches the shadow: coarser map
+        scale = math.sqrt(w * h / 2_000_000)
+        texel *= scale
+        w, h = (np.ceil((hi - lo) / texel).astype(int) + 1).tolist()
+    grid = (flat - lo) / texel
+    frag = raster.rasterize(grid, height + 1.0, faces, h, w, perspective=False, cull_back=True)
+    if mode == "cover":
+        value = (frag.face >= 0).astype(np.float64)
+    else:
+        value = np.where(frag.face >= 0, np.exp(-(frag.depth - 1.0) / 25.0), 0.0)
+    value = ndimage.gaussian_filter(value, blur_mm / texel, mode="constant")
+    gx, gy = (x - lo[0]) / texel, (y - lo[1]) / texel
+    return _bilinear(value, gx, gy)
+
+
+def _bilinear(img: np.ndarray, gx: np.ndarray, gy: np.ndarray) -> np.ndarray:
+    """Bilinear lookup of a 2D map at (column, row) coordinates; 0 outside."""
+    h, w = img.shape
+    pad = np.pad(img, 1)
+    gx, gy = np.clip(gx + 1.0, 0.0, w + 0.999), np.clip(gy + 1.0, 0.0, h + 0.999)
+    x0, y0 = gx.astype(np.int64), gy.astype(np.int64)
+    fx, fy = gx - x0, gy - y0
+    flat = pad.reshape(-1)
+    i00 = y0 * (w + 2) + x0
+    top = flat[i00] * (1 - fx) + flat[i00 + 1] * fx
+    bottom = flat[i00 + w + 2] * (1 - fx) + flat[i00 + w + 3] * fx
+    return top * (1 - fy) + bottom * fy
+
+
+def _upsample2(img: np.ndarray) -> np.ndarray:
+    """(H, W, C) values at pixel centres -> (2H+1, 2W+1, C) at half-pixel spacing (bilinear, edges replicated)."""
+    pad = np.pad(img, ((1, 1), (1, 1), (0, 0)), mode="edge")
+    h, w = img.shape[:2]
+    out = np.empty((2 * h + 1, 2 * w + 1, img.shape[2]))
+    out[1::2, 1::2] = img
+    out[0::2, 1::2] = 0.5 * (pad[:-1, 1:-1] + pad[1:, 1:-1])
+    out[:, 0::2] = 0.5 * (
+        np.pad(out[:, 1::2], ((0, 0), (1, 0), (0, 0)), mode="edge")
+        + np.pad(out[:, 1::2], ((0, 0), (0, 1), (0, 0)), mode="edge")
+    )
+    return out
+
+
+def _visible(uv: np.ndarray, z: np.ndarray, mask: np.ndarray, depth: np.ndarray, tolerance: np.ndarray) -> np.ndarray:
+    """Points whose projection lies in the image and, within one pixel, on ``mask`` with depth >= z - tolerance."""
+    size_h, size_w = mask.shape
+    out = np.zeros(len(uv), dtype=bool)
+    for i, ((u, v), zi, tol) in enumerate(zip(uv, z, tolerance, strict=True)):
+        if not (zi > 0 and -0.5 <= u < size_w - 0.5 and -0.5 <= v < size_h - 0.5):
+            continue
+        c, r = int(round(u)), int(round(v))
+        rs, cs = slice(max(r - 1, 0), r + 2), slice(max(c - 1, 0), c + 2)
+        out[i] = bool(np.any(mask[rs, cs] & (depth[rs, cs] >= zi - tol)))
+    return out
+
+
+def depth_noise(depth: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """Simulated sensor depth (uint16 mm, 0 = missing) from exact depth (mm, 0 = no surface).
+
+    ``z + N(0, sigma(z))`` with ``sigma(z) = DEPTH_NOISE_A_MM + DEPTH_NOISE_B_PER_MM z^2``; dropouts: pixels on a
+    depth edge (``DEPTH_EDGE_JUMP``) vanish with probability ``DEPTH_EDGE_DROPOUT``, any pixel with
+    ``DEPTH_RANDOM_DROPOUT``; outside ``DEPTH_RANGE_MM`` the depth is missing; rounded to whole millimetres.
+    """
+    z = depth.astype(np.float64)
+    sigma = DEPTH_NOISE_A_MM + DEPTH_NOISE_B_PER_MM * z * z
+    noisy = z + rng.standard_normal(z.shape) * sigma
+    jump = np.zeros(z.shape, dtype=bool)
+    limit = np.maximum(DEPTH_EDGE_JUMP[0], DEPTH_EDGE_JUMP[1] * z)
+    dy = np.abs(np.diff(z, axis=0)) > np.minimum(limit[1:], limit[:-1])
+    dx = np.abs(np.diff(z, axis=1)) > np.minimum(limit[:, 1:], limit[:, :-1])
+    jump[1:] |= dy
+    jump[:-1] |= dy
+    jump[:, 1:] |= dx
+    jump[:, :-1] |= dx
+    u = rng.random(z.shape)
+    drop = (jump & (u < DEPTH_EDGE_DROPOUT)) | (u > 1.0 - DEPTH_RANDOM_DROPOUT)
+    drop |= (z < DEPTH_RANGE_MM[0]) | (z > DEPTH_RANGE_MM[1])
+    return np.where(drop, 0, np.clip(np.round(noisy), 0, 65535)).astype(np.uint16)
+
+
+def _face_normals(verts: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """(F, 3) area-weighted face normals (not normalised)."""
+    a, b, c = verts[faces[:, 0]], verts[faces[:, 1]], verts[faces[:, 2]]
+    return np.cross(b - a, c - a)
+
+
+def _vertex_normals(verts: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    fn = _face_normals(verts, faces)
+    n = np.zeros_like(verts)
+    for k in range(3):
+        np.add.at(n, faces[:, k], fn)
+    return n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
+
+
+def _tube(
+    centre: np.ndarray,
+    axis: np.ndarray,
+    e1: np.ndarray,
+    e2: np.ndarray,
+    a: float,
+    b: float,
+    heights: list[float],
+    width,
+    outward: bool,
+    cap_top: bool,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Elliptic tube rings at ``heights`` along ``axis``; faces wound outwards (or inwards), top optionally closed."""
+    t = np.linspace(0, 2 * np.pi, LEG_SEGMENTS, endpoint=False)
+    # rings every LEG_RING_MM at most: long thin triangles would make the rasteriser test huge bounding boxes
+    steps = max(int(np.ceil((heights[-1] - heights[0]) / LEG_RING_MM)), 1)
+    heights = list(np.linspace(heights[0], heights[-1], steps + 1))
+    rings = []
+    for h in heights:
+        s = width(h)
+        rings.append(centre + h * axis + s * (a * np.cos(t)[:, None] * e1 + b * np.sin(t)[:, None] * e2))
+    verts = np.concatenate(rings)
+    n = LEG_SEGMENTS
+    i = np.arange(n)
+    faces = []
+    for r in range(len(heights) - 1):
+        p, q = r * n + i, r * n + (i + 1) % n
+        faces += [np.stack([p, q, q + n], 1), np.stack([p, q + n, p + n], 1)]
+    faces = np.concatenate(faces)
+    if cap_top:
+        top = len(verts)
+        verts = np.concatenate([verts, (centre + heights[-1] * axis)[None]])
+        last = (len(heights) - 1) * n
+        faces = np.concatenate([faces, np.stack([last + i, last + (i + 1) % n, np.full(n, top)], 1)])
+    # orient: the first side face's normal must point away from the axis (or towards it for an inner surface)
+    f0 = faces[0]
+    normal = np.cross(verts[f0[1]] - verts[f0[0]], verts[f0[2]] - verts[f0[0]])
+    radial = verts[f0[0]] - (centre + heights[0] * axis)
+    if (normal @ radial > 0) != outward:
+        faces = faces[:, [0, 2, 1]]
+    return verts, faces
+
+
+def _rot_x(a: float) -> np.ndarray:
+    c, s = math.cos(a), math.sin(a)
+    return np.array([[1.0, 0, 0], [0, c, -s], [0, s, c]])
+
+
+def _rot_y(a: float) -> np.ndarray:
+    c, s = math.cos(a), math.sin(a)
+    return np.array([[c, 0, s], [0, 1.0, 0], [-s, 0, c]])

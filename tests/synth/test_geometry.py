@@ -1,0 +1,107 @@
+"""Geometry consistency of rendered samples: joints, depth, silhouette and reference corners agree with K."""
+
+from __future__ import annotations
+
+import numpy as np
+import trimesh
+
+from footmesh.synth import raster
+from footmesh.synth.render import LABEL_LEG
+from footmesh.synth.textures import reference_size
+
+
+def _project(points: np.ndarray, k: np.ndarray) -> np.ndarray:
+    p = points.astype(np.float64) @ k.T
+    return p[:, :2] / p[:, 2:3]
+
+
+def test_joints_project_to_stored_2d(samples):
+    for s in samples:
+        err = np.abs(_project(s["joints3d"], s["K"]) - s["joints2d"]).max()
+        assert err < 0.5, err
+        assert s["joints_visible"].dtype == bool and s["joints_visible"].any()
+
+
+def test_clean_depth_in_silhouette_lies_on_the_mesh(samples, renderer):
+    worst = 0.0
+    for s in samples[:3]:
+        k, sil, depth = s["K"], s["silhouette"], s["depth_clean"].astype(np.float64)
+        rows, cols = np.nonzero(sil)
+        z = depth[rows, cols]
+        pts = np.stack([(cols - k[0, 2]) * z / k[0, 0], (rows - k[1, 2]) * z / k[1, 1], z], axis=1)
+        side = "right" if int(s["side"]) else "left"
+        mesh = trimesh.Trimesh(s["vertices"].astype(np.float64), renderer._faces[side], process=False)
+        _, dist, _ = trimesh.proximity.closest_point(mesh, pts)
+        worst = max(worst, float(dist.max()))
+    assert worst < 1.0, worst
+
+
+def test_silhouette_is_the_foots_own_pixels(samples, renderer):
+    """Render the foot alone: the silhouette is exactly its pixels except where the leg hides them."""
+    for s in samples:
+        side = "right" if int(s["side"]) else "left"
+        xy, z = raster.project(s["vertices"].astype(np.float64), s["K"])
+        size = s["rgb"].shape[0]
+        alone = raster.rasterize(xy, z, renderer._faces[side], size, size).face >= 0
+        sil = s["silhouette"]
+        assert not (sil & ~alone).any()
+        hidden = alone & ~sil
+        assert (s["labels"][hidden] == LABEL_LEG).all()
+
+
+def test_reference_corners(samples):
+    seen = 0
+    for s in samples:
+        if int(s["ref_type"]) == 0:
+            assert np.isnan(s["ref_corners3d"]).all()
+            continue
+        seen += 1
+        corners = s["ref_corners3d"].astype(np.float64)
+        assert np.abs(_project(corners, s["K"]) - s["ref_corners2d"]).max() < 0.5
+        scene_from_cam = np.linalg.inv(s["cam_from_scene"])
+        on_floor = corners @ scene_from_cam[:3, :3].T + scene_from_cam[:3, 3]
+        assert np.abs(on_floor[:, 2]).max() < 1e-2  # lying on the floor
+        kind = ("none", "a4", "card", "marker")[int(s["ref_type"])]
+        length, width = reference_size(kind)
+        sides = np.linalg.norm(np.roll(corners, -1, axis=0) - corners, axis=1)
+        np.testing.assert_allclose(sides, [length, width, length, width], atol=1e-2)
+    assert seen > 0
+
+
+def test_cam_from_foot_places_the_model(samples, renderer):
+    import torch
+
+    s = samples[0]
+    side = "right" if int(s["side"]) else "left"
+    pose = torch.from_numpy(s["cam_from_foot"])
+    out = renderer.model(
+        torch.from_numpy(s["shape"].astype(np.float64))[None],
+        torch.from_numpy(s["angles"].astype(np.float64))[None],
+        side=side,
+        rotation=pose[None, :3, :3],
+        translation=pose[None, :3, 3],
+    )
+    # angles are stored as float32: a few hundredths of a mm at most
+    assert np.abs(out.vertices[0].numpy() - s["vertices"]).max() < 0.05
+
+
+def test_rasteriser_matches_a_naive_loop():
+    rng = np.random.default_rng(0)
+    xy = rng.uniform(-2, 18, (12, 2))
+    z = rng.uniform(100, 200, 12)
+    faces = rng.integers(0, 12, (10, 3))
+    faces = faces[(faces[:, 0] != faces[:, 1]) & (faces[:, 1] != faces[:, 2]) & (faces[:, 0] != faces[:, 2])]
+    frag = raster.rasterize(xy, z, faces, 16, 16, cull_back=False)
+    for i in range(16):
+        for j in range(16):
+            best = np.inf
+            for f in faces:
+                a, b, c = xy[f]
+                m = np.array([[b[0] - a[0], c[0] - a[0]], [b[1] - a[1], c[1] - a[1]]])
+                if abs(np.linalg.det(m)) < 1e-12:
+                    continue
+                u, v = np.linalg.solve(m, [j - a[0], i - a[1]])
+                w = np.array([1 - u - v, u, v])
+                if (w >= -1e-9).all():
+                    best = min(best, 1.0 / (w / z[f]).sum())
+            assert np.isclose(frag.depth[i, j], best) or (np.isinf(best) and np.isinf(frag.depth[i, j]))
