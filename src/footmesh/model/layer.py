@@ -5,6 +5,7 @@ Like smplx's ``SMPLLayer``: the module only holds the asset's arrays as buffers;
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -146,7 +147,10 @@ def _batch_size(*tensors: torch.Tensor | float | None) -> int:
     return sizes.pop() if sizes else 1
 
 
-_DEFAULT_MODEL: FootModel | None = None
+@functools.lru_cache(maxsize=1)
+def default_model() -> FootModel:
+    """The packaged foot model (float32), loaded once; its arrays are read-only buffers."""
+    return FootModel()
 
 
 def foot_model(
@@ -160,11 +164,5 @@ def foot_model(
 
     Uses the packaged model unless ``model`` is given; see ``FootModel.forward`` for the arguments.
     """
-    global _DEFAULT_MODEL
-    if model is None:
-        if _DEFAULT_MODEL is None:
-            # Read-only arrays loaded once; the layer itself holds no mutable state.
-            _DEFAULT_MODEL = FootModel()
-        model = _DEFAULT_MODEL
-    out = model(shape, angles, scale, side)
+    out = (model if model is not None else default_model())(shape, angles, scale, side)
     return out.vertices, out.joints
