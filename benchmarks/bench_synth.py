@@ -30,8 +30,10 @@ def main(argv: list[str] | None = None) -> int:
 
     threadpool_limits(1)
     config = SynthConfig(size=args.size)
+    start = time.perf_counter()
     renderer = Renderer(config)
-    renderer.render(0, 0)  # warm up
+    renderer.render(0, 0)  # warm up: loads the model and compiles the kernels (numba)
+    startup = time.perf_counter() - start
     rows = []
     start = time.perf_counter()
     for i in range(args.n):
@@ -51,6 +53,7 @@ def main(argv: list[str] | None = None) -> int:
             )
 
     print(f"synthetic samples at {args.size} x {args.size}, {os.cpu_count()} cores")
+    print(f"start-up of one process (model, kernel compilation, first sample): {startup:.1f} s")
     print(f"{'what':<52} {'samples/s':>10} {'goal':>6}")
     for name, rate in rows:
         print(f"{name:<52} {rate:>10.1f} {GOAL:>6.0f}")

@@ -1,18 +1,20 @@
 """Render one synthetic sample (RGB, depth, silhouette, labels) from its ``Scene``.
 
-Image formation (per sample, all in numpy, ``raster.rasterize`` for triangles):
+Image formation (per sample; the per-sample and per-pixel loops are compiled with numba in ``kernels``):
 
 1. The foot model gives the posed foot (float64, one sample at a time so that batching never changes a bit);
    the scene places it on the floor and grows a lower leg from its ankle cap.
 2. Supersampling: the mesh and the floor are evaluated on a ``(2S+1) x (2S+1)`` grid of samples at half-pixel
    spacing whose odd samples are exactly the pixel centres. Depth, face ids, silhouette and labels come from the
    pixel-centre samples (exact, not filtered); colour is filtered with the tent ``[1, 2, 1] / 4`` in each
-   direction (anti-aliasing with no shift of the image against its labels).
+   direction (anti-aliasing with no shift of the image against its labels; ``kernels.compose``).
 3. Shading: Lambert (ambient + one directional light) on per-vertex normals (Gouraud); the floor gets the
    foot's and leg's cast shadow (their projection along the light onto the floor, blurred into a penumbra) and a
    soft contact shadow under the foot. The foot does not shadow itself (only ``n . l``).
 4. The floor (and a reference object lying on it) is exact ray-plane intersection, textured procedurally; it is
    drawn only when the camera is above it. Rays missing the floor within ``FAR_MM`` see a plain wall (depth 0).
+   ``kernels.floor_shade`` does all of it per pixel centre, skipping the texture where the mesh hides the pixel
+   and its neighbours (``kernels.floor_needed``); the shadow maps are rasterised and blurred first.
 5. Sensor noise: RGB gets Gaussian noise of ``RGB_NOISE`` (0..1 units); depth gets ``depth_noise``.
 """
 
@@ -27,7 +29,7 @@ from scipy import ndimage, sparse
 
 from footmesh.model.layer import FootModel
 from footmesh.model.skin import SkinColours, load_skin_colours
-from footmesh.synth import raster, textures
+from footmesh.synth import kernels, raster, textures
 from footmesh.synth.scene import (
     REFERENCE_KINDS,
     Scene,
@@ -112,8 +114,9 @@ class Renderer:
         """Posed foot and leg in the scene frame, and the joint angles drawn."""
         shape = torch.from_numpy(scene.shape)[None]
         with torch.no_grad():
-            rest = self.model(shape)
-            angles = sample_angles(scene.seed, scene.index, scene.pose_method, rest.rest_joints[0])
+            # only the IK poses need the shaped foot's rest joints (one more pass of the model)
+            rest = self.model(shape).rest_joints[0] if scene.pose_method == "ik" else None
+            angles = sample_angles(scene.seed, scene.index, scene.pose_method, rest)
             out = self.model(shape, torch.from_numpy(angles)[None], side=scene.side)
         verts, joints = out.vertices[0].numpy(), out.joints[0].numpy()
         pitch, roll = scene.tilt
@@ -210,24 +213,14 @@ class Renderer:
         shade = (scene.ambient * sky)[:, None] + (scene.diffuse * lambert)[:, None] * scene.light_colour[None]
         v_colour = albedo * shade
 
-        colour = np.zeros((n_ss * n_ss, 3))
-        face = frag.face.reshape(-1)
-        hit = face >= 0
-        tri = faces[face[hit]]  # (H, 3)
-        colour[hit] = np.einsum("hk,hkc->hc", frag.bary.reshape(-1, 3)[hit], v_colour[tri])
-
         # floor, reference object and background: evaluated at the pixel centres (exact depth and labels), and
         # upsampled bilinearly to the samples between them, where the mesh does not cover them
         eye = -rot.T @ trans
         jj, ii = np.meshgrid(np.arange(size, dtype=np.float64), np.arange(size, dtype=np.float64))
         pix = np.stack([jj.ravel(), ii.ravel(), np.ones(size * size)], axis=1)
         rays = pix @ np.linalg.inv(k).T @ rot  # scene-frame directions with camera z = 1
-        floor_rgb, floor_depth, ref_hit = self._floor(scene, geo, eye, rays)
-        floor_ss = _upsample2(floor_rgb.reshape(size, size, 3)).reshape(-1, 3)
-        colour[~hit] = floor_ss[~hit]
-        colour = colour.reshape(n_ss, n_ss, 3)
-        rgb = 0.25 * colour[:-1:2] + 0.5 * colour[1::2] + 0.25 * colour[2::2]
-        rgb = 0.25 * rgb[:, :-1:2] + 0.5 * rgb[:, 1::2] + 0.25 * rgb[:, 2::2]
+        floor_rgb, floor_depth, ref_hit = self._floor(scene, geo, eye, rays, kernels.floor_needed(frag.face))
+        rgb = kernels.compose(frag.face, frag.bary, faces, v_colour, floor_rgb.reshape(size, size, 3))
         rgb = rgb + rng.normal(0.0, RGB_NOISE, rgb.shape)
         rgb = np.clip(np.round(rgb * 255.0), 0, 255).astype(np.uint8)
 
@@ -244,7 +237,7 @@ class Renderer:
         v_foot_cam = geo.foot_vertices @ rot.T + trans
         j_cam = geo.foot_joints @ rot.T + trans
         j2d, jz = raster.project(j_cam, k)
-        tol = np.sqrt(((geo.foot_joints[:, None] - geo.foot_vertices[None]) ** 2).sum(-1)).min(axis=1)
+        tol = kernels.nearest_distance(geo.foot_joints, geo.foot_vertices)
         j_vis = _visible(j2d, jz, silhouette, depth, tol + JOINT_VISIBILITY_MARGIN_MM)
 
         ref_kind = scene.reference.kind if scene.reference is not None else "none"
@@ -287,75 +280,74 @@ class Renderer:
         return n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
 
     def _floor(
-        self, scene: Scene, geo: Geometry, eye: np.ndarray, rays: np.ndarray
+        self, scene: Scene, geo: Geometry, eye: np.ndarray, rays: np.ndarray, needed: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Colour (N, 3), camera depth (N,) (inf = none) and reference-object mask (N,) along scene-frame rays.
 
-        ``rays`` have camera z = 1, so the ray parameter at the floor is the camera depth.
+        ``rays`` have camera z = 1, so the ray parameter at the floor is the camera depth. The colour is computed
+        only where ``needed`` (any shape, N values; elsewhere 0: the mesh hides those pixel centres and their
+        neighbourhood).
         """
-        n = len(rays)
-        depth = np.full(n, np.inf)
-        ref_hit = np.zeros(n, dtype=bool)
-        unit_z = rays[:, 2] / np.linalg.norm(rays, axis=1)
-        colour = textures.background_colour(unit_z, scene.floor.salt)
-        if eye[2] <= 0:  # the camera is under the floor: the floor is one-sided and not seen
-            return colour * (scene.ambient + 0.5 * scene.diffuse), depth, ref_hit
-        with np.errstate(divide="ignore"):
-            t = np.where(rays[:, 2] < 0, -eye[2] / rays[:, 2], np.inf)
-        on = np.flatnonzero(t * np.linalg.norm(rays, axis=1) < FAR_MM)
-        depth[on] = t[on]
-        x = eye[0] + t[on] * rays[on, 0]
-        y = eye[1] + t[on] * rays[on, 1]
-        albedo = textures.floor_colour(scene.floor, x, y)
         ref = scene.reference
         if ref is not None:
-            u, v = ref.to_local(x, y)
-            inside, ref_colour = textures.reference_colour(ref.kind, u, v, ref.tint, ref.salt)
-            albedo[inside] = ref_colour[inside]
-            ref_hit[on[inside]] = True
+            ref_args = textures.reference_params(ref.kind, ref.tint, ref.salt)[2:]
+            ref_origin, ref_angle = np.asarray(ref.origin, dtype=np.float64), ref.angle
+        else:
+            ref_args = (0, 1.0, 1.0, 0.0, np.zeros(3), np.zeros(3), 0.0)
+            ref_origin, ref_angle = np.zeros(2), 0.0
         light = scene.light_dir
-        shadow = self._floor_shadow(geo, light, x, y)
-        contact = self._contact_shadow(geo, x, y)
-        lit = (scene.ambient * (1.0 - contact))[:, None] + (scene.diffuse * light[2] * (1.0 - shadow))[
-            :, None
-        ] * scene.light_colour[None]
-        colour[on] = albedo * lit
-        off = np.ones(n, dtype=bool)
-        off[on] = False
-        colour[off] *= scene.ambient + 0.5 * scene.diffuse
-        return colour, depth, ref_hit
+        if eye[2] > 0:
+            cast = self._floor_shadow(geo, light)
+            contact = self._contact_shadow(geo)
+        else:  # the camera is under the floor: the floor is one-sided and not seen
+            cast = contact = (np.zeros((1, 1)), np.zeros(2), 1.0)
+        table, *floor_args = textures.floor_params(scene.floor)
+        return kernels.floor_shade(
+            np.ascontiguousarray(rays),
+            eye,
+            FAR_MM,
+            textures.background_tint(scene.floor.salt),
+            scene.ambient + 0.5 * scene.diffuse,
+            table,
+            *floor_args,
+            ref_args[0],
+            ref_origin,
+            ref_angle,
+            *ref_args[1:],
+            textures.ARUCO_BITS,
+            *cast,
+            *contact,
+            scene.ambient,
+            scene.diffuse * light[2],
+            np.asarray(scene.light_colour, dtype=np.float64),
+            needed.reshape(-1),
+        )
 
-    def _floor_shadow(self, geo: Geometry, light: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
-        """Cast shadow of foot and leg on the floor, 0..1: their projection along the light, blurred."""
+    def _floor_shadow(self, geo: Geometry, light: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
+        """Cast shadow map of foot and leg on the floor, 0..1: their projection along the light, blurred."""
         verts = np.concatenate([geo.foot_vertices, geo.leg_vertices])
         faces = np.concatenate([geo.foot_faces, geo.leg_faces + len(geo.foot_vertices)])
         flat = verts[:, :2] - verts[:, 2:3] * (light[:2] / light[2])[None]
         # a closed surface's shadow is that of its faces turned to the light: counter-clockwise on the floor seen
         # from above, which the rasteriser (y-down convention) keeps after re-winding
         faces = faces[:, [0, 2, 1]]
-        return _coverage_lookup(flat, np.ones(len(flat)), faces, x, y, texel=3.0, blur_mm=4.0, mode="cover")
+        return _coverage_map(flat, np.ones(len(flat)), faces, texel=3.0, blur_mm=4.0, mode="cover")
 
-    def _contact_shadow(self, geo: Geometry, x: np.ndarray, y: np.ndarray) -> np.ndarray:
-        """Ambient occlusion under the foot, 0..0.6: strong where the sole is close to the floor, blurred."""
+    def _contact_shadow(self, geo: Geometry) -> tuple[np.ndarray, np.ndarray, float]:
+        """Ambient occlusion map under the foot, 0..1 (the floor is darkened by 0.6 of it): strong where the sole
+        is close to the floor, blurred."""
         v = geo.foot_vertices
         # the faces seen from below (the sole side) are clockwise seen from above: kept as they are
-        occ = _coverage_lookup(v[:, :2], v[:, 2], geo.foot_faces, x, y, texel=3.0, blur_mm=10.0, mode="height")
-        return 0.6 * occ
+        return _coverage_map(v[:, :2], v[:, 2], geo.foot_faces, texel=3.0, blur_mm=10.0, mode="height")
 
 
-def _coverage_lookup(
-    flat: np.ndarray,
-    height: np.ndarray,
-    faces: np.ndarray,
-    x: np.ndarray,
-    y: np.ndarray,
-    texel: float,
-    blur_mm: float,
-    mode: str,
-) -> np.ndarray:
-    """Rasterise triangles flattened onto the floor into a small map, blur it, and read it at floor points.
+def _coverage_map(
+    flat: np.ndarray, height: np.ndarray, faces: np.ndarray, texel: float, blur_mm: float, mode: str
+) -> tuple[np.ndarray, np.ndarray, float]:
+    """Rasterise triangles flattened onto the floor into a small map and blur it: (map, its origin (x, y) mm, texel).
 
     ``mode="cover"``: 1 where covered. ``mode="height"``: ``exp(-h / 25 mm)`` of the lowest surface height h.
+    The renderer reads the map bilinearly at floor points (0 outside it).
     """
     pad = 4 * blur_mm
     lo = flat.min(axis=0) - pad
@@ -372,36 +364,7 @@ def _coverage_lookup(
     else:
         value = np.where(frag.face >= 0, np.exp(-(frag.depth - 1.0) / 25.0), 0.0)
     value = ndimage.gaussian_filter(value, blur_mm / texel, mode="constant")
-    gx, gy = (x - lo[0]) / texel, (y - lo[1]) / texel
-    return _bilinear(value, gx, gy)
-
-
-def _bilinear(img: np.ndarray, gx: np.ndarray, gy: np.ndarray) -> np.ndarray:
-    """Bilinear lookup of a 2D map at (column, row) coordinates; 0 outside."""
-    h, w = img.shape
-    pad = np.pad(img, 1)
-    gx, gy = np.clip(gx + 1.0, 0.0, w + 0.999), np.clip(gy + 1.0, 0.0, h + 0.999)
-    x0, y0 = gx.astype(np.int64), gy.astype(np.int64)
-    fx, fy = gx - x0, gy - y0
-    flat = pad.reshape(-1)
-    i00 = y0 * (w + 2) + x0
-    top = flat[i00] * (1 - fx) + flat[i00 + 1] * fx
-    bottom = flat[i00 + w + 2] * (1 - fx) + flat[i00 + w + 3] * fx
-    return top * (1 - fy) + bottom * fy
-
-
-def _upsample2(img: np.ndarray) -> np.ndarray:
-    """(H, W, C) values at pixel centres -> (2H+1, 2W+1, C) at half-pixel spacing (bilinear, edges replicated)."""
-    pad = np.pad(img, ((1, 1), (1, 1), (0, 0)), mode="edge")
-    h, w = img.shape[:2]
-    out = np.empty((2 * h + 1, 2 * w + 1, img.shape[2]))
-    out[1::2, 1::2] = img
-    out[0::2, 1::2] = 0.5 * (pad[:-1, 1:-1] + pad[1:, 1:-1])
-    out[:, 0::2] = 0.5 * (
-        np.pad(out[:, 1::2], ((0, 0), (1, 0), (0, 0)), mode="edge")
-        + np.pad(out[:, 1::2], ((0, 0), (0, 1), (0, 0)), mode="edge")
-    )
-    return out
+    return value, lo, float(texel)
 
 
 def _visible(uv: np.ndarray, z: np.ndarray, mask: np.ndarray, depth: np.ndarray, tolerance: np.ndarray) -> np.ndarray:
@@ -471,19 +434,16 @@ def _tube(
     t = np.linspace(0, 2 * np.pi, LEG_SEGMENTS, endpoint=False)
     # rings every LEG_RING_MM at most: long thin triangles would make the rasteriser test huge bounding boxes
     steps = max(int(np.ceil((heights[-1] - heights[0]) / LEG_RING_MM)), 1)
-    heights = list(np.linspace(heights[0], heights[-1], steps + 1))
-    rings = []
-    for h in heights:
-        s = width(h)
-        rings.append(centre + h * axis + s * (a * np.cos(t)[:, None] * e1 + b * np.sin(t)[:, None] * e2))
-    verts = np.concatenate(rings)
+    heights = np.linspace(heights[0], heights[-1], steps + 1)
+    ring = a * np.cos(t)[:, None] * e1 + b * np.sin(t)[:, None] * e2  # (n, 3)
+    scale = np.array([width(h) for h in heights])
+    verts = (centre + heights[:, None, None] * axis + scale[:, None, None] * ring).reshape(-1, 3)
     n = LEG_SEGMENTS
     i = np.arange(n)
-    faces = []
-    for r in range(len(heights) - 1):
-        p, q = r * n + i, r * n + (i + 1) % n
-        faces += [np.stack([p, q, q + n], 1), np.stack([p, q + n, p + n], 1)]
-    faces = np.concatenate(faces)
+    p = (np.arange(len(heights) - 1) * n)[:, None] + i  # (rings - 1, n)
+    q = (np.arange(len(heights) - 1) * n)[:, None] + (i + 1) % n
+    # per ring: its n quads' first triangles, then their second ones
+    faces = np.stack([np.stack([p, q, q + n], -1), np.stack([p, q + n, p + n], -1)], 1).reshape(-1, 3)
     if cap_top:
         top = len(verts)
         verts = np.concatenate([verts, (centre + heights[-1] * axis)[None]])

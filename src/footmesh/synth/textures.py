@@ -1,7 +1,8 @@
-"""Procedural textures in numpy, evaluated at floor points in mm: floors, background, reference objects.
+"""Procedural textures evaluated at floor points in mm: floors, background, reference objects.
 
 No image files and no downloads: every texture is a function of the point ``(x, y)`` (mm, scene frame on the
-floor plane) and of a few parameters drawn by the scene sampler. Colours are sRGB in 0..1.
+floor plane) and of a few parameters drawn by the scene sampler. Colours are sRGB in 0..1. The per-point code is
+compiled (``kernels.floor_albedo``, ``kernels.reference_albedo``); the functions here wrap it for arrays.
 """
 
 from __future__ import annotations
@@ -59,13 +60,13 @@ def _hash(a: np.ndarray, b: np.ndarray | float = 0.0, salt: float = 0.0) -> np.n
 
 def value_noise(x: np.ndarray, y: np.ndarray, cell: float, salt: float) -> np.ndarray:
     """Smooth value noise in [0, 1) with feature size ``cell`` (mm): hashed lattice values, smoothstep blend."""
-    gx, gy = x / cell, y / cell
-    ix, iy = np.floor(gx), np.floor(gy)
-    fx, fy = gx - ix, gy - iy
-    fx, fy = fx * fx * (3 - 2 * fx), fy * fy * (3 - 2 * fy)
-    v00, v10 = _hash(ix, iy, salt), _hash(ix + 1, iy, salt)
-    v01, v11 = _hash(ix, iy + 1, salt), _hash(ix + 1, iy + 1, salt)
-    return (v00 * (1 - fx) + v10 * fx) * (1 - fy) + (v01 * (1 - fx) + v11 * fx) * fy
+    from footmesh.synth import kernels
+
+    x, y = np.broadcast_arrays(np.asarray(x, dtype=np.float64), np.asarray(y, dtype=np.float64))
+    flat = kernels.value_noise_many(
+        _TABLE, np.ascontiguousarray(x).reshape(-1), np.ascontiguousarray(y).reshape(-1), float(cell), float(salt)
+    )
+    return flat.reshape(x.shape)
 
 
 @dataclass(frozen=True)
@@ -96,49 +97,20 @@ class FloorParams:
 
 
 def floor_colour(p: FloorParams, x: np.ndarray, y: np.ndarray) -> np.ndarray:
-    """(N,) x, y on the floor (mm) -> (N, 3) sRGB albedo."""
-    ca, sa = np.cos(p.angle), np.sin(p.angle)
-    u, v = ca * x + sa * y, -sa * x + ca * y  # u along the planks / tile rows
-    base = np.asarray(p.colour)
-    if p.kind == "wood":
-        row = np.floor(v / p.size_mm)
-        plank_len = 5.0 * p.size_mm + 400.0
-        col = np.floor(u / plank_len + _hash(row, 0.0, p.salt))
-        tone = 1.0 + p.contrast * 0.35 * (_hash(row, col, p.salt + 1) - 0.5)
-        wobble = value_noise(u * 0.05, v, 4.0, p.salt + 2) * 6.0
-        grain = 0.5 + 0.5 * np.sin(2 * np.pi * (v + wobble) / (2.5 + 2 * _hash(row, col, p.salt + 3)))
-        fine = value_noise(u, v * 4.0, 30.0, p.salt + 4)
-        shade = tone * (0.88 + 0.12 * p.contrast * grain) * (0.93 + 0.14 * fine)
-        fv = v / p.size_mm - row
-        fu = u / plank_len + _hash(row, 0.0, p.salt) - np.floor(u / plank_len + _hash(row, 0.0, p.salt))
-        gap = (fv * p.size_mm < 1.5) | (fu * plank_len < 1.5)
-        shade = np.where(gap, 0.45, shade)
-    elif p.kind == "tiles":
-        gu, gv = u / p.size_mm, v / p.size_mm
-        iu, iv = np.floor(gu), np.floor(gv)
-        grout_mm = 2.0 + 4.0 * _hash(np.array(p.salt), 1.0)
-        du = np.minimum(gu - iu, 1 - (gu - iu)) * p.size_mm
-        dv = np.minimum(gv - iv, 1 - (gv - iv)) * p.size_mm
-        marble = value_noise(u, v, 60.0, p.salt) * 0.6 + value_noise(u, v, 15.0, p.salt + 1) * 0.4
-        shade = (1.0 + p.contrast * 0.12 * (_hash(iu, iv, p.salt) - 0.5)) * (0.92 + 0.16 * p.contrast * marble)
-        grout = np.minimum(du, dv) < grout_mm / 2
-        out = base[None] * shade[:, None]
-        grout_colour = np.where(base.mean() > 0.5, 0.55, 0.8) * np.array([1.0, 0.98, 0.95])
-        out[grout] = grout_colour
-        return np.clip(out, 0, 1)
-    elif p.kind == "carpet":
-        fibre = _hash(np.floor(u / p.size_mm), np.floor(v / p.size_mm), p.salt)
-        blotch = value_noise(u, v, 80.0, p.salt + 1)
-        shade = (0.8 + 0.3 * p.contrast * fibre) * (0.9 + 0.2 * blotch)
-    else:  # plain: concrete, vinyl, painted floor
-        shade = 0.92 + 0.12 * p.contrast * value_noise(u, v, p.size_mm, p.salt) + 0.04 * value_noise(u, v, 8.0, p.salt)
-    return np.clip(base[None] * shade[:, None], 0, 1)
+    """(N,) x, y on the floor (mm) -> (N, 3) sRGB albedo.
 
+    Wood: planks ``size_mm`` wide and ``5 size_mm + 400`` long, staggered, with a per-plank tone, wavy grain, fine
+    noise and 1.5 mm dark gaps. Tiles: ``size_mm`` squares, a per-tile tone, two-scale marble noise, grout 2-6 mm.
+    Carpet: fibres of ``size_mm`` with a random tone each, large blotches. Plain: two-scale value noise.
+    Evaluated per point by ``kernels.floor_texture``.
+    """
+    from footmesh.synth import kernels
 
-def background_colour(direction_z: np.ndarray, salt: float) -> np.ndarray:
-    """(N,) scene-up component of unit view rays -> (N, 3) colour of a distant wall (rays that miss the floor)."""
-    tint = 0.6 + 0.3 * np.array([_hash(np.array(salt), k)[()] for k in range(3)])
-    return np.clip(tint[None] * (0.85 + 0.25 * np.clip(direction_z, -1, 1))[:, None], 0, 1)
+    return kernels.floor_texture(
+        *floor_params(p),
+        np.ascontiguousarray(x, dtype=np.float64),
+        np.ascontiguousarray(y, dtype=np.float64),
+    )
 
 
 def reference_size(kind: str) -> tuple[float, float]:
@@ -161,27 +133,38 @@ def reference_colour(
     Returns:
         inside (N,) bool, where the object covers the point, and colour (N, 3) sRGB albedo there.
     """
-    w, h = reference_size(kind)
+    from footmesh.synth import kernels
+
+    return kernels.reference_texture(
+        *reference_params(kind, tint, salt),
+        np.ascontiguousarray(u, dtype=np.float64),
+        np.ascontiguousarray(v, dtype=np.float64),
+    )
+
+
+def reference_params(kind: str, tint: tuple[float, float, float], salt: float) -> tuple:
+    """The arguments of ``kernels.reference_albedo`` before the point: table, bits, kind id, size, margin, colours."""
+    length, width = reference_size(kind)
     margin = MARKER_MARGIN_MM if kind == "marker" else 0.0
-    inside = (u >= -margin) & (u <= w + margin) & (v >= -margin) & (v <= h + margin)
-    paper = np.asarray(tint)[None] * (0.97 + 0.03 * value_noise(u, v, 3.0, salt))[:, None]
-    if kind == "a4":
-        return inside, paper
-    if kind == "marker":
-        cell = MARKER_MM / ARUCO_BITS.shape[0]
-        iu = np.clip(np.floor(u / cell), 0, ARUCO_BITS.shape[1] - 1).astype(np.int64)
-        iv = np.clip(np.floor(v / cell), 0, ARUCO_BITS.shape[0] - 1).astype(np.int64)
-        in_marker = (u >= 0) & (u < MARKER_MM) & (v >= 0) & (v < MARKER_MM)
-        black = in_marker & ~ARUCO_BITS[iv, iu]
-        return inside, np.where(black[:, None], 0.06, paper)
-    # card: rounded corners, a base colour, a chip and a stripe
-    r = CARD_CORNER_MM
-    cu, cv = np.clip(u, r, w - r), np.clip(v, r, h - r)
-    inside &= (u - cu) ** 2 + (v - cv) ** 2 <= r * r
-    base = _CARD[int(_hash(np.array(salt), 5.0)[()] * len(_CARD))]
-    colour = np.broadcast_to(base, (len(u), 3)) * (0.9 + 0.2 * value_noise(u, v, 20.0, salt))[:, None]
-    chip = (u > 10) & (u < 22) & (v > 19) & (v < 29)
-    stripe = (v > 40) & (v < 44)
-    colour = np.where(chip[:, None], np.array([0.80, 0.68, 0.35]), colour)
-    colour = np.where(stripe[:, None], np.clip(base * 1.6 + 0.2, 0, 1), colour)
-    return inside, colour
+    card = _CARD[int(_hash(np.array(salt), 5.0)[()] * len(_CARD))]
+    kind_id = {"a4": 1, "card": 2, "marker": 3}[kind]
+    return _TABLE, ARUCO_BITS, kind_id, length, width, margin, card, np.asarray(tint, dtype=np.float64), float(salt)
+
+
+def floor_params(p: FloorParams) -> tuple:
+    """The arguments of ``kernels.floor_albedo`` before the point."""
+    return (
+        _TABLE,
+        FLOOR_KINDS.index(p.kind),
+        np.asarray(p.colour, dtype=np.float64),
+        float(p.size_mm),
+        float(p.angle),
+        float(p.salt),
+        float(p.contrast),
+    )
+
+
+def background_tint(salt: float) -> np.ndarray:
+    """(3,) colour of the distant wall (rays that miss the floor) seen level; a ray of scene-up component ``d``
+    (unit) sees ``clip(tint (0.85 + 0.25 d), 0, 1)`` (``kernels.floor_shade``)."""
+    return 0.6 + 0.3 * np.array([_hash(np.array(salt), k)[()] for k in range(3)])

@@ -1,0 +1,225 @@
+"""The compiled kernels against the numpy code they replaced (kept here, and only here, as the reference)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from footmesh.synth import kernels, raster, textures
+from footmesh.synth.textures import _TABLE, FloorParams
+
+
+def _numpy_rasterize(xy, z, faces, height, width, perspective=True, cull_back=True):
+    """The former vectorised numpy rasteriser: (face, depth, bary)."""
+    face_out = np.full(height * width, -1, dtype=np.int64)
+    depth_out = np.full(height * width, np.inf)
+    bary_out = np.zeros((height * width, 3))
+    p0, p1, p2 = xy[faces[:, 0]], xy[faces[:, 1]], xy[faces[:, 2]]
+    area = (p1[:, 0] - p0[:, 0]) * (p2[:, 1] - p0[:, 1]) - (p1[:, 1] - p0[:, 1]) * (p2[:, 0] - p0[:, 0])
+    keep = area < 0 if cull_back else area != 0
+    lo = np.maximum(np.ceil(np.minimum(np.minimum(p0, p1), p2)), 0.0)
+    hi = np.minimum(np.floor(np.maximum(np.maximum(p0, p1), p2)), [width - 1.0, height - 1.0])
+    keep &= np.all(hi >= lo, axis=1)
+    if perspective:
+        keep &= np.all(z[faces] > 0, axis=1)
+    ids = np.flatnonzero(keep)
+    lo_i, hi_i = lo[ids].astype(np.int64), hi[ids].astype(np.int64)
+    box_w = hi_i[:, 0] - lo_i[:, 0] + 1
+    counts = box_w * (hi_i[:, 1] - lo_i[:, 1] + 1)
+    cand = np.repeat(np.arange(len(ids)), counts)
+    local = np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts)
+    px = lo_i[cand, 0] + local % box_w[cand]
+    py = lo_i[cand, 1] + local // box_w[cand]
+    q0, q1, q2 = p0[ids], p1[ids], p2[ids]
+    inv = 1.0 / area[ids]
+    coef = [
+        ((qa[:, 1] - qb[:, 1]) * inv, (qb[:, 0] - qa[:, 0]) * inv, (qa[:, 0] * qb[:, 1] - qb[:, 0] * qa[:, 1]) * inv)
+        for qa, qb in ((q1, q2), (q2, q0))
+    ]
+    fx, fy = px.astype(np.float64), py.astype(np.float64)
+    w0 = coef[0][0][cand] * fx + coef[0][1][cand] * fy + coef[0][2][cand]
+    w1 = coef[1][0][cand] * fx + coef[1][1][cand] * fy + coef[1][2][cand]
+    w2 = 1.0 - w0 - w1
+    tol = -raster.EDGE_TOLERANCE
+    inside = (w0 >= tol) & (w1 >= tol) & (w2 >= tol)
+    w = np.stack([w0[inside], w1[inside], w2[inside]], axis=1)
+    cand, px, py = cand[inside], px[inside], py[inside]
+    zf = z[faces[ids]][cand]
+    if perspective:
+        wz = w / zf
+        depth = 1.0 / wz.sum(axis=1)
+        bary = wz * depth[:, None]
+    else:
+        depth, bary = (w * zf).sum(axis=1), w
+    pix = py * width + px
+    np.minimum.at(depth_out, pix, depth)
+    win = depth == depth_out[pix]
+    face_out[pix[win]] = ids[cand[win]]
+    bary_out[pix[win]] = bary[win]
+    return face_out.reshape(height, width), depth_out.reshape(height, width), bary_out.reshape(height, width, 3)
+
+
+@pytest.mark.parametrize("perspective, cull_back", [(True, True), (True, False), (False, True)])
+def test_rasteriser_matches_the_numpy_one(perspective, cull_back):
+    import trimesh
+
+    sphere = trimesh.creation.icosphere(subdivisions=2, radius=9.0)
+    rng = np.random.default_rng(1)
+    for _ in range(3):
+        v = sphere.vertices @ np.linalg.qr(rng.standard_normal((3, 3)))[0].T + [12.0, 10.0, 40.0]
+        xy, z = 30.0 * v[:, :2] / v[:, 2:3] + 1.0, v[:, 2]
+        faces = np.asarray(sphere.faces, dtype=np.int64)
+        # ties at equal depth and duplicated triangles: the later one wins in both
+        faces = np.concatenate([faces, faces[:7]])
+        frag = raster.rasterize(xy, z, faces, 21, 23, perspective=perspective, cull_back=cull_back)
+        face, depth, bary = _numpy_rasterize(xy, z, faces, 21, 23, perspective, cull_back)
+        assert (frag.face >= 0).sum() > 50
+        np.testing.assert_array_equal(frag.face, face)
+        np.testing.assert_array_equal(frag.depth, depth)
+        np.testing.assert_array_equal(frag.bary, bary)
+
+
+def _numpy_hash(a, b=0.0, salt=0.0):
+    s = int(salt * 1000.0)
+    ia = (np.asarray(a).astype(np.int64) + s) & 255
+    ib = (np.asarray(b).astype(np.int64) + 7 * s + (s >> 8)) & 255
+    return _TABLE[ia, ib]
+
+
+def _numpy_noise(x, y, cell, salt):
+    gx, gy = x / cell, y / cell
+    ix, iy = np.floor(gx), np.floor(gy)
+    fx, fy = gx - ix, gy - iy
+    fx, fy = fx * fx * (3 - 2 * fx), fy * fy * (3 - 2 * fy)
+    v00, v10 = _numpy_hash(ix, iy, salt), _numpy_hash(ix + 1, iy, salt)
+    v01, v11 = _numpy_hash(ix, iy + 1, salt), _numpy_hash(ix + 1, iy + 1, salt)
+    return (v00 * (1 - fx) + v10 * fx) * (1 - fy) + (v01 * (1 - fx) + v11 * fx) * fy
+
+
+def _numpy_floor(p, x, y):
+    """The former numpy ``textures.floor_colour``."""
+    ca, sa = np.cos(p.angle), np.sin(p.angle)
+    u, v = ca * x + sa * y, -sa * x + ca * y
+    base = np.asarray(p.colour)
+    if p.kind == "wood":
+        row = np.floor(v / p.size_mm)
+        plank_len = 5.0 * p.size_mm + 400.0
+        col = np.floor(u / plank_len + _numpy_hash(row, 0.0, p.salt))
+        tone = 1.0 + p.contrast * 0.35 * (_numpy_hash(row, col, p.salt + 1) - 0.5)
+        wobble = _numpy_noise(u * 0.05, v, 4.0, p.salt + 2) * 6.0
+        grain = 0.5 + 0.5 * np.sin(2 * np.pi * (v + wobble) / (2.5 + 2 * _numpy_hash(row, col, p.salt + 3)))
+        fine = _numpy_noise(u, v * 4.0, 30.0, p.salt + 4)
+        shade = tone * (0.88 + 0.12 * p.contrast * grain) * (0.93 + 0.14 * fine)
+        fv = v / p.size_mm - row
+        h = _numpy_hash(row, 0.0, p.salt)
+        fu = u / plank_len + h - np.floor(u / plank_len + h)
+        shade = np.where((fv * p.size_mm < 1.5) | (fu * plank_len < 1.5), 0.45, shade)
+    elif p.kind == "tiles":
+        gu, gv = u / p.size_mm, v / p.size_mm
+        iu, iv = np.floor(gu), np.floor(gv)
+        grout_mm = 2.0 + 4.0 * _numpy_hash(np.array(p.salt), 1.0)
+        du = np.minimum(gu - iu, 1 - (gu - iu)) * p.size_mm
+        dv = np.minimum(gv - iv, 1 - (gv - iv)) * p.size_mm
+        marble = _numpy_noise(u, v, 60.0, p.salt) * 0.6 + _numpy_noise(u, v, 15.0, p.salt + 1) * 0.4
+        shade = (1.0 + p.contrast * 0.12 * (_numpy_hash(iu, iv, p.salt) - 0.5)) * (0.92 + 0.16 * p.contrast * marble)
+        out = base[None] * shade[:, None]
+        out[np.minimum(du, dv) < grout_mm / 2] = np.where(base.mean() > 0.5, 0.55, 0.8) * np.array([1.0, 0.98, 0.95])
+        return np.clip(out, 0, 1)
+    elif p.kind == "carpet":
+        fibre = _numpy_hash(np.floor(u / p.size_mm), np.floor(v / p.size_mm), p.salt)
+        shade = (0.8 + 0.3 * p.contrast * fibre) * (0.9 + 0.2 * _numpy_noise(u, v, 80.0, p.salt + 1))
+    else:
+        shade = (
+            0.92 + 0.12 * p.contrast * _numpy_noise(u, v, p.size_mm, p.salt) + 0.04 * _numpy_noise(u, v, 8.0, p.salt)
+        )
+    return np.clip(base[None] * shade[:, None], 0, 1)
+
+
+def test_floor_textures_match_the_numpy_ones():
+    rng = np.random.default_rng(3)
+    x, y = rng.uniform(-900, 900, 4000), rng.uniform(-900, 900, 4000)
+    kinds = set()
+    for _ in range(24):
+        p = FloorParams.sample(rng)
+        kinds.add(p.kind)
+        np.testing.assert_allclose(textures.floor_colour(p, x, y), _numpy_floor(p, x, y), rtol=0, atol=1e-12)
+    assert kinds == set(textures.FLOOR_KINDS)
+    np.testing.assert_allclose(textures.value_noise(x, y, 7.0, 3.3), _numpy_noise(x, y, 7.0, 3.3), atol=1e-12)
+
+
+def _numpy_reference(kind, u, v, tint, salt):
+    """The former numpy ``textures.reference_colour``."""
+    w, h = textures.reference_size(kind)
+    margin = textures.MARKER_MARGIN_MM if kind == "marker" else 0.0
+    inside = (u >= -margin) & (u <= w + margin) & (v >= -margin) & (v <= h + margin)
+    paper = np.asarray(tint)[None] * (0.97 + 0.03 * _numpy_noise(u, v, 3.0, salt))[:, None]
+    if kind == "a4":
+        return inside, paper
+    if kind == "marker":
+        cell = textures.MARKER_MM / 6
+        iu = np.clip(np.floor(u / cell), 0, 5).astype(np.int64)
+        iv = np.clip(np.floor(v / cell), 0, 5).astype(np.int64)
+        in_marker = (u >= 0) & (u < textures.MARKER_MM) & (v >= 0) & (v < textures.MARKER_MM)
+        return inside, np.where((in_marker & ~textures.ARUCO_BITS[iv, iu])[:, None], 0.06, paper)
+    r = textures.CARD_CORNER_MM
+    cu, cv = np.clip(u, r, w - r), np.clip(v, r, h - r)
+    inside &= (u - cu) ** 2 + (v - cv) ** 2 <= r * r
+    base = textures._CARD[int(_numpy_hash(np.array(salt), 5.0)[()] * len(textures._CARD))]
+    colour = np.broadcast_to(base, (len(u), 3)) * (0.9 + 0.2 * _numpy_noise(u, v, 20.0, salt))[:, None]
+    colour = np.where(((u > 10) & (u < 22) & (v > 19) & (v < 29))[:, None], np.array([0.80, 0.68, 0.35]), colour)
+    return inside, np.where(((v > 40) & (v < 44))[:, None], np.clip(base * 1.6 + 0.2, 0, 1), colour)
+
+
+@pytest.mark.parametrize("kind", ["a4", "card", "marker"])
+def test_reference_textures_match_the_numpy_ones(kind):
+    rng = np.random.default_rng(4)
+    u, v = rng.uniform(-40, 340, 20000), rng.uniform(-40, 250, 20000)
+    inside, colour = textures.reference_colour(kind, u, v, (0.95, 0.93, 0.9), 41.7)
+    want_inside, want = _numpy_reference(kind, u, v, (0.95, 0.93, 0.9), 41.7)
+    np.testing.assert_array_equal(inside, want_inside)
+    np.testing.assert_allclose(colour[inside], want[inside], rtol=0, atol=1e-12)
+
+
+def test_compose_matches_upsampling_and_the_tent_filter_in_numpy():
+    rng = np.random.default_rng(5)
+    size = 9
+    face = np.where(rng.random((2 * size + 1, 2 * size + 1)) < 0.4, rng.integers(0, 6, (2 * size + 1,) * 2), -1)
+    bary = rng.dirichlet(np.ones(3), (2 * size + 1, 2 * size + 1))
+    faces, v_colour, floor = rng.integers(0, 8, (6, 3)), rng.random((8, 3)), rng.random((size, size, 3))
+    # reference: the former numpy path (bilinear upsampling with replicated edges, then [1, 2, 1] / 4)
+    pad = np.pad(floor, ((1, 1), (1, 1), (0, 0)), mode="edge")
+    up = np.empty((2 * size + 1, 2 * size + 1, 3))
+    up[1::2, 1::2] = floor
+    up[0::2, 1::2] = 0.5 * (pad[:-1, 1:-1] + pad[1:, 1:-1])
+    odd = up[:, 1::2]
+    up[:, 0::2] = 0.5 * (
+        np.pad(odd, ((0, 0), (1, 0), (0, 0)), mode="edge") + np.pad(odd, ((0, 0), (0, 1), (0, 0)), mode="edge")
+    )
+    hit = face >= 0
+    up[hit] = np.einsum("hk,hkc->hc", bary[hit], v_colour[faces[face[hit]]])
+    rgb = 0.25 * up[:-1:2] + 0.5 * up[1::2] + 0.25 * up[2::2]
+    rgb = 0.25 * rgb[:, :-1:2] + 0.5 * rgb[:, 1::2] + 0.25 * rgb[:, 2::2]
+    np.testing.assert_allclose(kernels.compose(face, bary, faces, v_colour, floor), rgb, rtol=0, atol=1e-12)
+    # the floor is read only at the pixels that ``floor_needed`` marks
+    needed = kernels.floor_needed(face)
+    masked = np.where(needed[..., None], floor, np.nan)
+    np.testing.assert_array_equal(
+        kernels.compose(face, bary, faces, v_colour, masked), kernels.compose(face, bary, faces, v_colour, floor)
+    )
+
+
+def test_nearest_distance_and_bilinear():
+    rng = np.random.default_rng(6)
+    p, v = rng.normal(size=(18, 3)) * 50, rng.normal(size=(300, 3)) * 50
+    want = np.sqrt(((p[:, None] - v[None]) ** 2).sum(-1)).min(axis=1)
+    np.testing.assert_array_equal(kernels.nearest_distance(p, v), want)
+    img = rng.random((5, 7))
+    gx, gy = rng.uniform(-2, 9, 200), rng.uniform(-2, 7, 200)
+    pad = np.pad(img, 1)  # the former numpy lookup: zeros around the map
+    x, y = np.clip(gx + 1.0, 0.0, 7.999), np.clip(gy + 1.0, 0.0, 5.999)
+    x0, y0 = x.astype(int), y.astype(int)
+    fx, fy = x - x0, y - y0
+    top = pad[y0, x0] * (1 - fx) + pad[y0, x0 + 1] * fx
+    bottom = pad[y0 + 1, x0] * (1 - fx) + pad[y0 + 1, x0 + 1] * fx
+    got = np.array([kernels.bilinear_at(img, a, b) for a, b in zip(gx, gy, strict=True)])
+    np.testing.assert_allclose(got, top * (1 - fy) + bottom * fy, rtol=0, atol=1e-15)
