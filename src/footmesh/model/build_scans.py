@@ -13,10 +13,12 @@ Steps:
    template and the settings), so a rerun skips finished scans and an interrupted run loses at most one scan;
 3. a scan that fails (unreadable, wrong units, registration off: mean distance or folds over the limits) is
    reported and skipped; the summary lists them;
-4. the registered shapes are aligned rigidly (no scale: size is shape) to the template, the PCA is fitted
-   (:func:`footmesh.model.pca.fit_pca`), the mean is stood in the foot frame
-   (:func:`footmesh.model.template.to_foot_frame`) and rigged (:func:`footmesh.model.rig.build_rig`), and the
-   asset is written with :func:`footmesh.model.assets.save_asset`.
+4. every registered shape is stood in the foot frame (:func:`footmesh.model.template.to_foot_frame`: heel
+   origin, floor z = 0; no scale: size is shape) -- the same convention as the FIND-built model
+   (:mod:`footmesh.model.build_find`), so the components describe shape in the foot frame and not rigid motion
+   about a Procrustes centroid --, the PCA is fitted (:func:`footmesh.model.pca.fit_pca`), the mean re-stood
+   (components turned alike) and rigged (:func:`footmesh.model.rig.build_rig`), and the asset is written with
+   :func:`footmesh.model.assets.save_asset`.
 """
 
 from __future__ import annotations
@@ -244,28 +246,35 @@ def pca_asset(shapes: np.ndarray, template: FootModelAsset, variance: float, pro
     """PCA asset (same format as the FIND-built model) from registered shapes on the template's topology.
 
     Args:
-        shapes: (N, V, 3) mm, any rigid pose each (aligned here to the template).
+        shapes: (N, V, 3) mm, any rigid pose each (each is stood in the foot frame here).
         template: supplies the faces (and the reference pose); 4,002 vertices (footmesh's template) or 1,002
             (FIND's, its first vertices). The landmarks are footmesh's on that template
             (:func:`footmesh.model.scans.template_landmarks`), used for the foot frame and the rig and stored.
     """
     from footmesh.model.pca import fit_pca
     from footmesh.model.rig import build_rig
+    from footmesh.model.template import to_foot_frame
 
-    aligned = align_rigid(np.asarray(shapes, dtype=np.float64), template.mean_vertices.astype(np.float64))
-    # generalised Procrustes: once more onto the sample mean, which is closer to every shape than the template
-    aligned = align_rigid(aligned, aligned.mean(axis=0))
-    mean, components, sd, ratio = fit_pca(aligned, variance=variance)
+    x = np.asarray(shapes, dtype=np.float64)
     # footmesh's landmarks on this template (vertex_ids.LANDMARKS, or moved to the 1,002-vertex base): the rig
     # and the foot frame need them, and the template's own list may lack some (a cut-down template)
     landmarks = template_landmarks(template.num_vertices)
+    # Stand EVERY shape in the foot frame, as build_find does for the FIND-built model. Not Procrustes: a
+    # least-squares alignment about the centroid is another convention (a longer foot grows both ways from its
+    # centroid instead of forward from the heel; a higher arch tilts the sole off the floor), which gives the PCA
+    # other components than the reference model's -- principal angles of 29-73 degrees for the first 5 on the
+    # reference's own shapes, 0.1-6 degrees when stood (docs/registration.md).
     try:
-        from footmesh.model.template import to_foot_frame
-
-        standing = to_foot_frame(mean, landmarks)
+        aligned = np.stack([to_foot_frame(s, landmarks) for s in x])
+        frame = True
     except (KeyError, ValueError) as exc:
-        log.warning("could not stand the mean in the foot frame (%s); kept the template's frame", exc)
-        standing = align_rigid(mean[None], template.mean_vertices)[0]
+        log.warning("could not stand the shapes in the foot frame (%s); aligned them by Procrustes", exc)
+        aligned = align_rigid(x, template.mean_vertices.astype(np.float64))
+        aligned = align_rigid(aligned, aligned.mean(axis=0))  # generalised Procrustes: onto the sample mean
+        frame = False
+    mean, components, sd, ratio = fit_pca(aligned, variance=variance)
+    # the mean of stood feet is nearly stood already: re-stand it and turn the components by the same rotation
+    standing = to_foot_frame(mean, landmarks) if frame else align_rigid(mean[None], template.mean_vertices)[0]
     sim = umeyama(mean, standing)  # rigid (to_foot_frame keeps the size): rotate the components alike
     mean = sim.apply(mean)
     components = np.asarray(components) @ sim.rotation.T
