@@ -117,6 +117,38 @@ def test_registration_accuracy_with_markers_and_prior(model, seed):
     assert [s.name for s in res.stages] == ["coarse", "medium", "fine"]  # markers-only stage skipped (prior)
 
 
+def test_shape_prior_stage_does_not_run_off_along_the_scale_valley():
+    """Regression: scan 9 of ``bench_register.py --build`` (full packaged model, scale 1). The undamped Gauss-Newton
+    prior stage jumped along the scale / size-component valley in its first round and ended at scale 3.1 with the
+    first coefficient at -13 sd (90 mm correspondence error); with the log-scale prior and the step halving it
+    lands on the shape (0.08 mm)."""
+    from footmesh.model.assets import load_asset
+
+    try:
+        asset = load_asset()
+    except (FileNotFoundError, ValueError) as exc:
+        pytest.skip(f"packaged foot model not available: {exc}")
+    rng = np.random.default_rng(1000)  # bench_register.model_shapes(asset, 70, 1000)[9]
+    c = rng.standard_normal((70, asset.num_components))[9] * asset.component_sd
+    truth = asset.mean_vertices + np.tensordot(c, asset.components, axes=1)
+    markers = template_markers(asset.num_vertices)
+    scan = synthetic_scan(truth, asset.faces, markers, seed=1009, target_vertices=5000, scale_range=(1.0, 1.0))
+    res = reg.register(
+        asset.mean_vertices,
+        asset.faces,
+        scan.mesh,
+        markers,
+        scan.markers,
+        config=reg.RegistrationConfig(stages=()),  # the prior stage alone
+        shape_basis=asset.components,
+        shape_sd=asset.component_sd,
+    )
+    err = np.linalg.norm(res.vertices - scan.true_vertices, axis=1).mean()
+    assert err < 1.0, err  # 90 mm before the fix
+    assert 0.9 < res.initial.scale < 1.2, res.initial.scale
+    assert np.abs(res.prior_coefficients / asset.component_sd).max() < 4.0
+
+
 def test_registration_without_markers_finds_the_pose(model):
     """Principal axes + the four sign flips + similarity ICP: a scan in any orientation, no markers."""
     truth = random_shape(model, seed=7)

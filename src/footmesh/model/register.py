@@ -44,6 +44,11 @@ AXES_TRIAL_ROUNDS = 5
 """Similarity-ICP rounds given to each of the four principal-axes candidates before the best is refined."""
 ICP_POINTS = 1000
 """Template vertices (an even subsample) used by the similarity ICP of the initialisation and the shape prior."""
+PRIOR_STEP_HALVINGS = 8
+"""Shape-prior stage: a Gauss-Newton step that does not lower the (truncated) cost is halved up to this many times.
+Undamped, the first round of one scan in 50 jumped along the scale / size-component valley (scale 1.0 -> 1.47, first
+coefficient -5.8 sd); its closest-point weights then dropped 40% of the points, and it ended at scale 3.1 and
+-13 sd: 90 mm correspondence error."""
 PRIOR_STEP_TOL_MM = 0.002
 """The shape-prior stage stops when no (subsampled) vertex moved more than this (scan mm) in a round."""
 
@@ -111,6 +116,10 @@ class RegistrationConfig:
         prior_sigma_mm: data noise of the shape-prior stage (mm); the coefficients get a standard-normal prior.
         prior_marker_sigma_mm: marker noise of the shape-prior stage (mm).
         prior_max_distance_mm: data weight zero beyond this distance in the shape-prior stage.
+        prior_scale_sd: sd of the log-scale of the shape-prior stage's similarity about the initial one. The
+            packaged model's first component changes the size, so scale and that coefficient trade against each
+            other almost freely; without this prior the Gauss-Newton walked that valley on 7 of 50 scans of
+            ``bench_register.py --build`` (scale 1.0 -> 3-5, first coefficient -10 to -14 sd: 35-130 mm error).
     """
 
     stages: tuple[Stage, ...] = field(default_factory=default_stages)
@@ -123,6 +132,7 @@ class RegistrationConfig:
     prior_sigma_mm: float = 1.0
     prior_marker_sigma_mm: float = 2.0
     prior_max_distance_mm: float = 20.0
+    prior_scale_sd: float = 0.02
 
 
 # --- results ------------------------------------------------------------------------------------------------
@@ -409,6 +419,13 @@ def _fit_shape_prior(
     ICP still slides slowly along the surface, hence up to 100 rounds (on about ``ICP_POINTS`` vertices: 40 rounds
     left one 4,002-vertex scan at 0.8 mm, 100 reach 0.09 mm).
 
+    Two safeguards against that same near-degeneracy (scale vs the size component): a prior on the log-scale
+    about the initial similarity's (``cfg.prior_scale_sd``), and step halving on the truncated cost
+    (:data:`PRIOR_STEP_HALVINGS`). Without them 7 of the 50 scans of ``bench_register.py --build`` walked down the
+    valley to scale 3-5 and the first coefficient at -10 to -14 sd, a shrunken foot blown up (35-130 mm error,
+    which wrecked the model built from them). The scale prior only decides where along the valley the fit
+    lands (how the size splits between the scale and the coefficients), not the fitted surface.
+
     Returns:
         shape (V, 3) template frame mm, the refined similarity, coefficients (K,).
     """
@@ -420,12 +437,42 @@ def _fit_shape_prior(
     sub = np.arange(0, len(template), max(1, len(template) // ICP_POINTS))
     w_data = np.sqrt(len(template) / len(sub)) / cfg.prior_sigma_mm
     w_marker = 1.0 / cfg.prior_marker_sigma_mm
+    from scipy.spatial.transform import Rotation
+
+    def advance(c0: np.ndarray, s0: Similarity, d: np.ndarray) -> tuple[np.ndarray, Similarity]:
+        # p' = e^ds dR (p - t) + t + dt, p = s R x + t
+        dr = Rotation.from_rotvec(d[k + 1 : k + 4]).as_matrix()
+        return c0 + d[:k], Similarity(s0.scale * float(np.exp(d[k])), dr @ s0.rotation, s0.translation + d[k + 4 :])
+
+    def cost(c0: np.ndarray, s0: Similarity) -> float:
+        # the objective with every data distance truncated at the stage's cut-off: a point cannot lower it by
+        # leaving the fit (dropping out of the weights), which is how the undamped iteration escaped
+        p = s0.apply(template[sub] + np.tensordot(c0, basis[:, sub], axes=1))
+        _, d, _, brd = surface.query(p)
+        e = (w_data * np.minimum(d[~brd], cfg.prior_max_distance_mm)) ** 2
+        total = (
+            float(e.sum()) + float(((c0 * inv_sd) ** 2).sum()) + (np.log(s0.scale / scale0) / cfg.prior_scale_sd) ** 2
+        )
+        if len(marker_ids):
+            pm = s0.apply(template[marker_ids] + np.tensordot(c0, basis[:, marker_ids], axes=1))
+            total += float(((w_marker * (pm - marker_pts)) ** 2).sum())
+        return total
+
+    cost_now = None
+    scale0 = sim.scale
     for _ in range(cfg.prior_rounds):
         shape = template + np.tensordot(c, basis, axes=1)  # (V, 3)
         moved = sim.apply(shape)
         closest, dist, n_scan, border = surface.query(moved[sub])
         n_shape = vertex_normals(moved, faces)[sub]
         ok = (dist <= cfg.prior_max_distance_mm) & ((n_shape * n_scan).sum(axis=1) >= cos_min) & ~border
+        log.debug(
+            "prior round: scale %.4f, c/sd %s, mean distance %.3f mm, data fraction %.2f",
+            sim.scale,
+            np.round(c * inv_sd, 2)[:3].tolist(),
+            float(dist[ok].mean()) if ok.any() else np.inf,
+            ok.mean(),
+        )
         if ok.sum() < 10:
             break
         rb = sim.scale * basis @ sim.rotation.T  # (K, V, 3) the basis as seen in the scan frame
@@ -444,16 +491,20 @@ def _fit_shape_prior(
             rhs.append(w * (target - moved[ids]).ravel())
         rows.append(np.concatenate([np.diag(inv_sd), np.zeros((k, 7))], axis=1))  # prior on c + dc
         rhs.append(-inv_sd * c)
+        rows.append(np.eye(1, k + 7, k) / cfg.prior_scale_sd)  # prior on log(scale) + ds about the initial one
+        rhs.append(np.array([-np.log(sim.scale / scale0) / cfg.prior_scale_sd]))
         delta = np.linalg.lstsq(np.concatenate(rows), np.concatenate(rhs), rcond=None)[0]
-        c = c + delta[:k]
-        ds, dw, dt = delta[k], delta[k + 1 : k + 4], delta[k + 4 :]
-        from scipy.spatial.transform import Rotation
-
-        dr = Rotation.from_rotvec(dw).as_matrix()
-        scale = sim.scale * float(np.exp(ds))
-        rot = dr @ sim.rotation
-        # p' = e^ds dR (p - t) + t + dt, p = s R x + t
-        sim = Similarity(scale, rot, sim.translation + dt)
+        c_old, sim_old = c, sim
+        cost_old = cost(c, sim) if cost_now is None else cost_now
+        for _ in range(PRIOR_STEP_HALVINGS + 1):
+            c, sim = advance(c_old, sim_old, delta)
+            cost_now = cost(c, sim)
+            if cost_now <= cost_old:
+                break
+            delta = 0.5 * delta
+        else:  # no descent along the Gauss-Newton direction: converged (or stuck); keep the last accepted fit
+            c, sim = c_old, sim_old
+            break
         step = np.linalg.norm(sim.apply(template[sub] + np.tensordot(c, basis[:, sub], axes=1)) - moved[sub], axis=1)
         if step.max() < PRIOR_STEP_TOL_MM:  # converged: no vertex moved more than this in the last round
             break
