@@ -3,9 +3,11 @@
 from __future__ import annotations
 
 import contextlib
+import io
 import json
 import os
 import tempfile
+import zipfile
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -22,6 +24,7 @@ def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
     os.close(fd)
     try:
         yield Path(tmp)
+        os.chmod(tmp, 0o644)  # mkstemp makes the file private; results are ordinary files
         os.replace(tmp, target)
     finally:
         Path(tmp).unlink(missing_ok=True)
@@ -32,6 +35,30 @@ def write_json(path: str | os.PathLike, data: dict[str, Any]) -> None:
     text = json.dumps(data, indent=2, allow_nan=False, default=_to_builtin) + "\n"
     with atomic_path(path) as tmp:
         tmp.write_text(text)
+
+
+ZIP_DATE_TIME = (1980, 1, 1, 0, 0, 0)
+"""Every member of a written ``.npz`` carries this date, so that writing the same arrays gives the same bytes."""
+
+
+def add_npy_member(zf: zipfile.ZipFile, name: str, value: np.ndarray, compresslevel: int | None = None) -> None:
+    """Add ``value`` to an open zip as ``name.npy`` with the fixed date (``np.load`` reads it as usual)."""
+    buffer = io.BytesIO()
+    np.lib.format.write_array(buffer, np.asanyarray(value), allow_pickle=False)
+    info = zipfile.ZipInfo(f"{name}.npy", date_time=ZIP_DATE_TIME)
+    info.compress_type = zipfile.ZIP_DEFLATED
+    info.external_attr = 0o644 << 16
+    zf.writestr(info, buffer.getvalue(), compresslevel=compresslevel)
+
+
+def write_npz(path: str | os.PathLike, arrays: dict[str, np.ndarray], compresslevel: int | None = None) -> None:
+    """Write a compressed ``.npz`` atomically whose bytes depend only on the arrays.
+
+    ``np.savez_compressed`` stamps each member with the current time, so two identical builds would differ.
+    """
+    with atomic_path(path) as tmp, zipfile.ZipFile(tmp, "w", compression=zipfile.ZIP_DEFLATED) as zf:
+        for name, value in arrays.items():
+            add_npy_member(zf, name, value, compresslevel)
 
 
 def write_mesh(path: str | os.PathLike, vertices: np.ndarray, faces: np.ndarray) -> None:

@@ -18,8 +18,6 @@ from __future__ import annotations
 
 import io
 import os
-import tempfile
-import zipfile
 from dataclasses import dataclass, fields
 from importlib import resources
 from pathlib import Path
@@ -107,36 +105,10 @@ def load_asset(path: str | os.PathLike | None = None) -> FootModelAsset:
 
 
 def save_asset(asset: FootModelAsset, path: str | os.PathLike) -> None:
-    """Write the asset atomically; the bytes depend only on the arrays (see ``write_npz``)."""
+    """Write the asset atomically; the bytes depend only on the arrays (``report.write_npz``)."""
     arrays = {f.name: getattr(asset, f.name) for f in fields(FootModelAsset)}
     arrays["provenance"] = np.array(asset.provenance)
     arrays["format_version"] = np.array(FORMAT_VERSION)
+    from footmesh.report import write_npz
+
     write_npz(path, arrays)
-
-
-ZIP_DATE_TIME = (1980, 1, 1, 0, 0, 0)
-"""Every member of a written ``.npz`` carries this date, so that rebuilding an asset gives the same bytes."""
-
-
-def write_npz(path: str | os.PathLike, arrays: dict[str, np.ndarray]) -> None:
-    """Write a compressed ``.npz`` atomically (temporary file + rename) with reproducible bytes.
-
-    ``np.savez_compressed`` stamps each member with the current time, so two identical builds would differ; this
-    writes the same ``.npy`` members with a fixed date instead (``np.load`` reads it as usual).
-    """
-    p = Path(path)
-    p.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=p.parent, suffix=".npz.tmp")
-    try:
-        with os.fdopen(fd, "wb") as fh, zipfile.ZipFile(fh, "w", compression=zipfile.ZIP_DEFLATED) as zf:
-            for name, value in arrays.items():
-                buffer = io.BytesIO()
-                np.lib.format.write_array(buffer, np.asanyarray(value), allow_pickle=False)
-                info = zipfile.ZipInfo(f"{name}.npy", date_time=ZIP_DATE_TIME)
-                info.compress_type = zipfile.ZIP_DEFLATED
-                info.external_attr = 0o644 << 16
-                zf.writestr(info, buffer.getvalue())
-        os.replace(tmp, p)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise

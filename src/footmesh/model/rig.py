@@ -35,6 +35,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 from scipy.optimize import nnls
 
+from footmesh.measure import stick_length_mm
 from footmesh.model import skeleton as sk
 
 MTP_X_FRACTION = (0.725, 0.705, 0.68, 0.655, 0.63)
@@ -98,7 +99,7 @@ def build_rig(vertices: np.ndarray, faces: np.ndarray, landmarks: dict[str, int]
         return np.array(sorted({vid, *neighbours[vid]}))
 
     heel_x = v[:, 0].min()
-    length = _stick_length(v)
+    length = stick_length_mm(v)
     # Tips and heel: the landmark's group.
     for k, name in enumerate(TIP_LANDMARKS):
         set_from_groups(sk.TOE_BRANCHES[k][2], [ring(landmarks[name])], np.ones(1))
@@ -219,12 +220,6 @@ def _one_rings(n: int, edges: np.ndarray) -> list[set[int]]:
         rings[a].add(int(b))
         rings[b].add(int(a))
     return rings
-
-
-def _stick_length(v: np.ndarray) -> float:
-    from footmesh.measure import stick_length_mm
-
-    return stick_length_mm(v)
 
 
 def _nearest_vertex(v: np.ndarray, p: np.ndarray) -> int:

@@ -90,7 +90,7 @@ def sample_skin_colours(rng: np.random.Generator, n: int, colours: SkinColours |
 
 def save_skin_colours(colours: SkinColours, path: str | os.PathLike) -> None:
     """Write the skin colour asset (float16 mean and components)."""
-    from footmesh.model.assets import write_npz
+    from footmesh.report import write_npz
 
     write_npz(
         path,

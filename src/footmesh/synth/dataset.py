@@ -44,10 +44,8 @@ index                  () int64             global sample index
 
 from __future__ import annotations
 
-import io
 import json
 import os
-import tempfile
 import zipfile
 from collections.abc import Callable, Iterable
 from dataclasses import asdict
@@ -57,12 +55,12 @@ import numpy as np
 from torch.utils.data import Dataset
 
 from footmesh import __version__
+from footmesh.report import add_npy_member, atomic_path
 from footmesh.synth.scene import SynthConfig
 
 CHUNK = 256
 """Samples per chunk file."""
 META = "meta.json"
-ZIP_DATE_TIME = (1980, 1, 1, 0, 0, 0)
 COMPRESS_LEVEL = 1
 """zlib level of the chunk files: 1 is several times faster than the default 6 and barely larger here."""
 
@@ -91,35 +89,17 @@ def chunk_indices(c: int, n: int, chunk: int = CHUNK) -> range:
 
 def write_chunk(path: str | os.PathLike, samples: Iterable[dict[str, np.ndarray]]) -> None:
     """Write samples into one chunk ``.npz`` atomically, with reproducible bytes (fixed member dates)."""
-    p = Path(path)
-    p.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=p.parent, prefix=f".{p.name}.", suffix=".tmp")
-    try:
-        with (
-            os.fdopen(fd, "wb") as fh,
-            zipfile.ZipFile(fh, "w", compression=zipfile.ZIP_DEFLATED, compresslevel=COMPRESS_LEVEL) as zf,
-        ):
-            indices = []
-            for sample in samples:
-                index = int(sample["index"])
-                indices.append(index)
-                for key, value in sample.items():
-                    _write_member(zf, sample_key(index, key), value)
-            _write_member(zf, "index", np.asarray(indices, dtype=np.int64))
-        os.chmod(tmp, 0o644)
-        os.replace(tmp, p)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-
-
-def _write_member(zf: zipfile.ZipFile, name: str, value: np.ndarray) -> None:
-    buffer = io.BytesIO()
-    np.lib.format.write_array(buffer, np.asanyarray(value), allow_pickle=False)
-    info = zipfile.ZipInfo(f"{name}.npy", date_time=ZIP_DATE_TIME)
-    info.compress_type = zipfile.ZIP_DEFLATED
-    info.external_attr = 0o644 << 16
-    zf.writestr(info, buffer.getvalue(), compresslevel=COMPRESS_LEVEL)
+    with (
+        atomic_path(path) as tmp,
+        zipfile.ZipFile(tmp, "w", compression=zipfile.ZIP_DEFLATED, compresslevel=COMPRESS_LEVEL) as zf,
+    ):
+        indices = []
+        for sample in samples:
+            index = int(sample["index"])
+            indices.append(index)
+            for key, value in sample.items():
+                add_npy_member(zf, sample_key(index, key), value, COMPRESS_LEVEL)
+        add_npy_member(zf, "index", np.asarray(indices, dtype=np.int64), COMPRESS_LEVEL)
 
 
 def make_meta(config: SynthConfig, n: int, seed: int, chunk: int = CHUNK) -> dict:
