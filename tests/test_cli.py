@@ -13,7 +13,7 @@ from footmesh.cli import main
 
 def test_demo_writes_meshes_json_and_picture(tmp_path, capsys):
     out = tmp_path / "demo"
-    assert main(["demo", "--out", str(out), "--seed", "3", "--side", "right"]) == 0
+    assert main(["demo", "--model", "--out", str(out), "--seed", "3", "--side", "right"]) == 0
     result = json.loads((out / "result.json").read_text())
     assert result["side"] == "right"
     measured = {k: v["value_mm"] for k, v in result["measurements"].items()}

@@ -21,26 +21,77 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("-v", "--verbose", action="store_true", help="more log output")
     sub = parser.add_subparsers(dest="command", required=True)
     _add_model_commands(sub)
+    _add_measure_command(sub)
     _add_demo_command(sub)
     _add_synth_command(sub)
+    _add_train_commands(sub)
+    _add_eval_commands(sub)
     return parser
+
+
+# --- footmesh measure (issue 7: the product's main job) ------------------------------------------------------
+
+
+def _add_measure_command(sub: argparse._SubParsersAction) -> None:
+    m = sub.add_parser(
+        "measure",
+        help="measure the foot in one or more photos: mesh, joints, measurements, shoe sizes",
+        description="Measure the foot in each photo; writes result.json, mesh.obj, mesh.glb, canonical.obj and "
+        "overlay.png per photo (docs/measure.md). Millimetres come only from a depth map or a reference object "
+        "(A4 sheet, bank card, printed marker) in the photo; otherwise the result is unscaled.",
+    )
+    m.add_argument("images", nargs="+", metavar="IMAGE", help="photo(s): JPEG, PNG, ... (EXIF orientation honoured)")
+    m.add_argument("--depth", action="append", help="depth map per photo (16-bit PNG in mm, or .npy); repeatable")
+    m.add_argument("--depth-unit", choices=("mm", "m"), default="mm", help="unit of float .npy depth (default mm)")
+    m.add_argument("--intrinsics", action="append", help="K.json per photo (or one for all): fx, fy, cx, cy, ...")
+    m.add_argument("--side", choices=("left", "right", "auto"), default="auto", help="which foot (default auto)")
+    m.add_argument("--out", default="footmesh_out", help="output folder (default footmesh_out)")
+    m.add_argument("--json", action="store_true", help="print the result JSON to stdout")
+    m.set_defaults(func=_run_measure)
+
+
+def _run_measure(args: argparse.Namespace) -> int:
+    from footmesh.batch import measure_batch
+
+    n = len(args.images)
+    depths = args.depth or []
+    if depths and len(depths) != n:
+        raise UserError(f"give one --depth per photo: {n} photo(s) but {len(depths)} --depth")
+    intrinsics = args.intrinsics or []
+    if len(intrinsics) not in (0, 1, n):
+        raise UserError(f"give one --intrinsics for all photos or one per photo, not {len(intrinsics)} for {n}")
+    return measure_batch(
+        args.images,
+        args.out,
+        depths=depths or None,
+        depth_unit=args.depth_unit,
+        intrinsics=intrinsics or None,
+        side=args.side,
+        print_json=args.json,
+    )
 
 
 # --- footmesh demo ------------------------------------------------------------------------------------------
 
 
 def _add_demo_command(sub: argparse._SubParsersAction) -> None:
-    demo = sub.add_parser("demo", help="sample, pose, canonicalise and measure a foot; write OBJ, JSON and PNG")
+    demo = sub.add_parser("demo", help="measure the bundled example photos and compare with their known truth")
     demo.add_argument("--out", default="demo_out", help="output folder (default: demo_out)")
-    demo.add_argument("--seed", type=int, default=0, help="random seed (default: 0)")
-    demo.add_argument("--side", choices=("left", "right"), default="left")
+    demo.add_argument(
+        "--model", action="store_true", help="instead: sample, pose, canonicalise and measure a model foot"
+    )
+    demo.add_argument("--seed", type=int, default=0, help="random seed of --model (default: 0)")
+    demo.add_argument("--side", choices=("left", "right"), default="left", help="side of --model")
     demo.set_defaults(func=_run_demo)
 
 
 def _run_demo(args: argparse.Namespace) -> int:
-    from footmesh.demo import DemoConfig, run_demo
+    from footmesh.demo import DemoConfig, run_demo, run_photo_demo
 
-    run_demo(args.out, DemoConfig(seed=args.seed, side=args.side))
+    if args.model:
+        run_demo(args.out, DemoConfig(seed=args.seed, side=args.side))
+    else:
+        run_photo_demo(args.out)
     return 0
 
 
@@ -217,6 +268,110 @@ def _run_synth(args: argparse.Namespace) -> int:
         progress=not args.no_progress,
     )
     log.info("wrote %d chunk files into %s (shard %d of %d)", len(written), args.out, args.shard_index, args.shards)
+    return 0
+
+
+# --- footmesh train ... (issue 5: 2D cues) --------------------------------------------------------------------
+
+
+def _add_train_commands(sub: argparse._SubParsersAction) -> None:
+    train = sub.add_parser("train", help="train footmesh's networks on synthetic data (resumable, torchrun-ready)")
+    train_sub = train.add_subparsers(dest="train_command", required=True)
+    cues = train_sub.add_parser("cues", help="train the 2D-cues network (silhouette + 18 joints)")
+    cues.add_argument("--input", choices=("rgb", "rgbd", "depth"), required=True, help="input channels")
+    cues.add_argument("--data", required=True, help="synthetic dataset folder (footmesh synth)")
+    cues.add_argument("--out", help="run folder: checkpoint, logs, weights.pt (default runs/cues-INPUT)")
+    cues.add_argument("--config", help="JSON configuration (see footmesh.config); command-line flags override it")
+    cues.add_argument("--thesis", action="store_true", help="the thesis' network (3 stacks, ResNet-18, 224 px)")
+    cues.add_argument("--steps", type=int, help="training steps")
+    cues.add_argument("--batch-size", type=int, help="batch size per process")
+    cues.add_argument("--max-minutes", type=float, help="stop (resumable) after this many minutes")
+    cues.add_argument("--init-from", help="weights to start from (e.g. the RGB-D network's weights.pt)")
+    cues.add_argument("--threads", type=int, help="torch threads per process")
+    cues.add_argument("--no-progress", action="store_true", help="no progress bar")
+    cues.set_defaults(func=_run_train_cues)
+
+
+def _run_train_cues(args: argparse.Namespace) -> int:
+    from dataclasses import replace
+
+    from footmesh.config import CuesNetConfig, load_config
+    from footmesh.train.cues import train_cues
+
+    config = load_config(args.config, input=args.input)
+    if args.thesis:
+        config = replace(config, net=CuesNetConfig.thesis(args.input))
+    train_overrides = {
+        "steps": args.steps,
+        "batch_size": args.batch_size,
+        "max_minutes": args.max_minutes,
+        "init_from": args.init_from,
+        "threads": args.threads,
+    }
+    for name in ("steps", "batch_size", "threads"):
+        value = train_overrides[name]
+        if value is not None and value < 1:
+            raise UserError(f"--{name.replace('_', '-')} must be at least 1, got {value}")
+    config = replace(config, train=replace(config.train, **{k: v for k, v in train_overrides.items() if v is not None}))
+    out = args.out or f"runs/cues-{args.input}"
+    result = train_cues(args.data, out, config, progress=not args.no_progress)
+    state = "finished" if result.finished else "stopped (rerun the same command to resume)"
+    metrics = ", ".join(f"{k} {v:.4g}" for k, v in result.metrics.items())
+    log.info(
+        "%s after %d steps in %.0f min; %s; weights: %s/weights.pt",
+        state,
+        result.steps_done,
+        result.seconds / 60,
+        metrics,
+        out,
+    )
+    return 0
+
+
+# --- footmesh eval ... ------------------------------------------------------------------------------------------
+
+
+def _add_eval_commands(sub: argparse._SubParsersAction) -> None:
+    ev = sub.add_parser("eval", help="evaluate on held-out synthetic test splits; thesis tables beside ours")
+    ev_sub = ev.add_subparsers(dest="eval_command", required=True)
+    cues = ev_sub.add_parser("cues", help="Tables 4.1, 4.2 (and 4.3 per viewpoint) of the 2D-cues networks")
+    cues.add_argument("--input", choices=("rgb", "rgbd", "depth", "all"), default="all", help="network(s)")
+    cues.add_argument("--data", required=True, help="test folder (footmesh synth, another seed than training)")
+    cues.add_argument("--views-data", help="test folder made with --views thesis, for Table 4.3")
+    cues.add_argument("--weights", help="weights.pt to evaluate instead of the shipped ones (one --input)")
+    cues.add_argument("--json", help="also write the numbers to this JSON file")
+    cues.set_defaults(func=_run_eval_cues)
+    meas = ev_sub.add_parser("measure", help="Tables 4.7 (4.8, 4.9): the whole pipeline on synthetic photos")
+    meas.add_argument("--modes", default="rgb_ref,rgbd,depth,rgb", help="comma list of rgb_ref, rgbd, depth, rgb")
+    meas.add_argument("--n", type=int, default=60, help="photos per mode (default 60)")
+    meas.add_argument("--size", type=int, default=640, help="photo side, px (default 640)")
+    meas.add_argument("--views", choices=("random", "thesis"), default="random", help="camera views")
+    meas.add_argument("--json", help="also write per-photo records to this JSON file")
+    meas.add_argument("--no-progress", action="store_true", help="no progress bar")
+    meas.set_defaults(func=_run_eval_measure)
+
+
+def _run_eval_cues(args: argparse.Namespace) -> int:
+    from footmesh.eval.cues import INPUTS, run_eval
+
+    inputs = list(INPUTS) if args.input == "all" else [args.input]
+    if args.weights and len(inputs) != 1:
+        raise UserError("--weights needs a single --input (rgb, rgbd or depth)")
+    weights = {inputs[0]: args.weights} if args.weights else None
+    print(run_eval(args.data, inputs, args.views_data, weights, args.json))
+    return 0
+
+
+def _run_eval_measure(args: argparse.Namespace) -> int:
+    from footmesh.eval.measure import MODES, run_eval
+
+    modes = [m.strip() for m in args.modes.split(",") if m.strip()]
+    bad = [m for m in modes if m not in MODES]
+    if bad or not modes:
+        raise UserError(f"--modes must be a comma list of {', '.join(MODES)}; got {args.modes!r}")
+    if args.n < 1 or args.size < 128:
+        raise UserError("--n must be at least 1 and --size at least 128")
+    print(run_eval(modes, args.n, args.size, args.views, args.json, progress=not args.no_progress))
     return 0
 
 

@@ -1,0 +1,181 @@
+"""Typed configuration of the networks and their training, in one place; every default works as it is.
+
+A configuration file (``--config FILE``, JSON) holds any subset of the fields, e.g.
+``{"net": {"stacks": 3}, "train": {"batch_size": 16}}``; unknown keys are an error, not silently ignored.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import asdict, dataclass, field, fields, replace
+from typing import Any
+
+INPUT_CHANNELS = {"rgb": 3, "rgbd": 4, "depth": 1}
+"""Channels of each input kind of the 2D-cues network."""
+
+
+@dataclass(frozen=True)
+class CuesNetConfig:
+    """Architecture of the 2D-cues network (``footmesh.cues.net.CuesNet``).
+
+    ``thesis()`` is the thesis' network (3 stacks, ResNet-18 encoders, one head of sigmoid maps, arg-max
+    decoding); the defaults are ours: one narrower stack at 128 px sized for a 2-core CPU (a second stack costs
+    twice the time; ``stacks`` > 1 gives the thesis' intermediate supervision), separate silhouette and joint
+    heads, soft-argmax (sub-pixel) joints with a visibility confidence per joint.
+    """
+
+    input: str = "rgbd"
+    image_size: int = 128
+    """Side of the square network input, px; photos' crops are resized to it."""
+    stacks: int = 1
+    widths: tuple[int, ...] = (32, 64, 96, 128)
+    """Channels of the encoder stages at strides 4, 8, 16, 32 (ResNet-18: 64, 128, 256, 512)."""
+    blocks: tuple[int, ...] = (1, 1, 1, 1)
+    """Residual blocks per encoder stage (ResNet-18: 2 each)."""
+    decoder_convs: int = 5
+    """Convolutions per decoder (thesis: 5), spread over the up-sampling steps."""
+    head: str = "soft_argmax"
+    """``soft_argmax``: heatmap softmax -> expected position (+ visibility logits); ``sigmoid``: the thesis' maps."""
+    heatmap_sigma_px: float = 1.0
+    """SD of the Gaussian joint targets, in output-map pixels."""
+
+    @property
+    def in_channels(self) -> int:
+        return INPUT_CHANNELS[self.input]
+
+    @classmethod
+    def thesis(cls, input: str = "rgbd") -> CuesNetConfig:
+        """The thesis' stacked hourglass (section 3.2) at its 224 x 224 input."""
+        return cls(
+            input=input,
+            image_size=224,
+            stacks=3,
+            widths=(64, 128, 256, 512),
+            blocks=(2, 2, 2, 2),
+            decoder_convs=5,
+            head="sigmoid",
+            heatmap_sigma_px=2.0,
+        )
+
+    def __post_init__(self) -> None:
+        if self.input not in INPUT_CHANNELS:
+            raise ValueError(f"input must be one of {sorted(INPUT_CHANNELS)}, got {self.input!r}")
+        if self.head not in ("soft_argmax", "sigmoid"):
+            raise ValueError(f"head must be 'soft_argmax' or 'sigmoid', got {self.head!r}")
+        if len(self.widths) != 4 or len(self.blocks) != 4:
+            raise ValueError("widths and blocks need one entry per encoder stage (4)")
+        if self.image_size % 32 or self.image_size < 64:
+            raise ValueError(f"image_size must be a multiple of 32 and at least 64, got {self.image_size}")
+        if self.stacks < 1:
+            raise ValueError(f"stacks must be at least 1, got {self.stacks}")
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    """Optimisation, schedule, checkpoints and logging of a training run."""
+
+    steps: int = 6000
+    batch_size: int = 32
+    lr: float = 2e-3
+    weight_decay: float = 1e-4
+    warmup_steps: int = 200
+    val_fraction: float = 0.025
+    """Share of the training folder held out for validation (the last samples)."""
+    val_every: int = 500
+    checkpoint_every_s: float = 120.0
+    max_minutes: float | None = None
+    """Stop cleanly (checkpoint written) after this much wall time; the next run resumes."""
+    seed: int = 0
+    threads: int | None = None
+    """torch threads per process; default: the cores available divided by the processes."""
+    augment: bool = True
+    init_from: str | None = None
+    """Weights to start from (e.g. the RGB-D network for the RGB one); matching layers are copied."""
+
+
+@dataclass(frozen=True)
+class CuesLossConfig:
+    """Weights of the 2D-cues losses."""
+
+    silhouette: float = 1.0
+    heatmap: float = 1.0
+    joints_px: float = 0.05
+    """Weight of the L1 joint distance in input pixels (soft-argmax head)."""
+    visibility: float = 0.1
+
+
+@dataclass(frozen=True)
+class CuesTrainingConfig:
+    """Everything ``footmesh train cues`` needs besides the data folder."""
+
+    net: CuesNetConfig = field(default_factory=CuesNetConfig)
+    train: TrainConfig = field(default_factory=TrainConfig)
+    loss: CuesLossConfig = field(default_factory=CuesLossConfig)
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> CuesTrainingConfig:
+        return _from_dict(cls, data, "config")
+
+
+def _from_dict(cls, data: dict[str, Any], where: str):
+    """Build dataclass ``cls`` from a (partial) dict, recursing into nested dataclasses; unknown keys fail."""
+    if not isinstance(data, dict):
+        raise ValueError(f"{where} must be a JSON object, got {type(data).__name__}")
+    known = {f.name: f for f in fields(cls)}
+    unknown = sorted(set(data) - set(known))
+    if unknown:
+        raise ValueError(f"unknown {where} keys {unknown}; known: {sorted(known)}")
+    default = cls()
+    values = {}
+    for name, value in data.items():
+        current = getattr(default, name)
+        if hasattr(current, "__dataclass_fields__"):
+            value = _from_dict(type(current), value, f"{where}.{name}")
+        elif isinstance(current, tuple):
+            value = tuple(value)
+        values[name] = value
+    return replace(default, **values)
+
+
+def load_config(path: str | os.PathLike | None, **overrides: Any) -> CuesTrainingConfig:
+    """The defaults, updated from a JSON file (if given) and then by ``overrides`` of the ``net`` fields."""
+    config = CuesTrainingConfig()
+    if path is not None:
+        try:
+            data = json.loads(open(path).read())
+        except FileNotFoundError:
+            raise FileNotFoundError(f"config file not found: {path}") from None
+        except json.JSONDecodeError as exc:
+            raise ValueError(f"config file {path} is not valid JSON: {exc}") from None
+        config = CuesTrainingConfig.from_dict(data)
+    net_overrides = {k: v for k, v in overrides.items() if v is not None}
+    if net_overrides:
+        config = replace(config, net=replace(config.net, **net_overrides))
+    return config
+
+
+@dataclass(frozen=True)
+class MeasureConfig:
+    """Settings of ``footmesh measure`` (``footmesh.pipeline``)."""
+
+    working_max_side: int = 1024
+    """Photos are processed at no more than this many pixels on their longer side (results map back)."""
+    crop_fill: float = 0.45
+    """The foot's longer side fills this fraction of the crop given to the networks (as in their training)."""
+    min_foot_fraction: float = 0.004
+    """A foot must cover at least this fraction of the photo."""
+    second_foot_ratio: float = 0.35
+    """A second region at least this large relative to the foot means two feet."""
+    max_border_pixels: int = 12
+    """More silhouette pixels than this on the photo's edge: the foot is cut off."""
+    edge_margin_px: float = 2.0
+    uncertainty_samples: int = 48
+    uncertainty_factor: dict[str, float] = field(
+        default_factory=lambda: {"depth": 1.0, "a4": 1.0, "card": 1.0, "marker": 1.0}
+    )
+    """Calibration of the fit's covariance-based SD per scale source (``footmesh eval measure``)."""
+    uncertainty_floor_mm: float = 0.5

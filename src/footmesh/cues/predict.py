@@ -1,0 +1,89 @@
+"""Running the 2D-cues network on images of any size and mapping its outputs back to their pixels."""
+
+from __future__ import annotations
+
+import os
+
+import cv2
+import numpy as np
+import torch
+import torch.nn.functional as F  # noqa: N812
+from torch import nn
+
+from footmesh.config import CuesNetConfig
+from footmesh.cues import Cues
+from footmesh.cues.inputs import network_input
+from footmesh.cues.weights import network_for
+
+
+def resize_inputs(
+    rgb: np.ndarray | None, depth_mm: np.ndarray | None, size: int
+) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """Resize an (H, W, 3) uint8 image and an (H, W) mm depth map to ``size`` x ``size`` as in training
+    (``footmesh.train.data.resize_sample``: area averaging for colour, nearest neighbour for depth)."""
+    rgb_s = None if rgb is None else cv2.resize(rgb, (size, size), interpolation=cv2.INTER_AREA)
+    depth_s = None
+    if depth_mm is not None:
+        depth_s = cv2.resize(np.asarray(depth_mm, np.float32), (size, size), interpolation=cv2.INTER_NEAREST)
+    return rgb_s, depth_s
+
+
+def joints_to_image(joints: np.ndarray, size: int, width: int, height: int) -> np.ndarray:
+    """Network-input pixels (side ``size``) -> pixels of the ``width`` x ``height`` image it was resized from."""
+    scale = np.array([width / size, height / size])
+    return ((joints + 0.5) * scale - 0.5).astype(np.float32)
+
+
+@torch.no_grad()
+def predict_batch(
+    model: nn.Module,
+    config: CuesNetConfig,
+    rgb: np.ndarray | None,
+    depth_mm: np.ndarray | None,
+    out_size: tuple[int, int] | None = None,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Cues of a batch already at the network's side: ``rgb`` (B, S, S, 3) uint8, ``depth_mm`` (B, S, S).
+
+    Returns the silhouette probability (B, H, W) at ``out_size`` = (W, H) (default S x S), the joints (B, 18, 2)
+    in those pixels, and each joint's confidence (B, 18).
+    """
+    t_rgb = None if rgb is None else torch.from_numpy(np.ascontiguousarray(rgb)).permute(0, 3, 1, 2).float() / 255
+    t_depth = None if depth_mm is None else torch.from_numpy(np.asarray(depth_mm, np.float32))[:, None]
+    x = network_input(config.input, t_rgb, t_depth)
+    out = model(x)[-1]
+    size = config.image_size
+    width, height = out_size or (size, size)
+    sil = torch.sigmoid(F.interpolate(out.silhouette_logits, size=(height, width), mode="bilinear"))[:, 0]
+    joints = joints_to_image(out.joints.numpy(), size, width, height)
+    return sil.numpy().astype(np.float32), joints, torch.sigmoid(out.visibility_logits).numpy().astype(np.float32)
+
+
+def predict_cues(
+    input_kind: str,
+    rgb: np.ndarray | None = None,
+    depth_mm: np.ndarray | None = None,
+    weights: str | os.PathLike | None = None,
+) -> Cues:
+    """Silhouette and joints of one image (H, W, 3) uint8 and/or depth map (H, W) mm, in its own pixels.
+
+    The image should be framed on the foot (the networks were trained on views centred near the foot);
+    the whole-photo pipeline crops around the foot first.
+    """
+    model, config = network_for(input_kind, weights)
+    ref = rgb if rgb is not None else depth_mm
+    if ref is None:
+        raise ValueError("predict_cues needs an image, a depth map, or both")
+    height, width = ref.shape[:2]
+    if rgb is not None and depth_mm is not None and rgb.shape[:2] != depth_mm.shape[:2]:
+        raise ValueError(f"image {rgb.shape[1]}x{rgb.shape[0]} and depth {depth_mm.shape[1]}x{depth_mm.shape[0]}")
+    rgb_s, depth_s = resize_inputs(
+        rgb if input_kind != "depth" else None, depth_mm if input_kind != "rgb" else None, config.image_size
+    )
+    sil, joints, conf = predict_batch(
+        model,
+        config,
+        None if rgb_s is None else rgb_s[None],
+        None if depth_s is None else depth_s[None],
+        out_size=(width, height),
+    )
+    return Cues(silhouette=sil[0], joints2d_px=joints[0], joint_confidence=conf[0], input=input_kind)

@@ -1,0 +1,250 @@
+"""``footmesh eval measure``: the whole pipeline on synthetic photos, thesis Tables 4.7, 4.8 and 4.9.
+
+Each test photo is rendered like a phone photo (``--size`` px, a phone-like field of view, floors, a reference
+object on the floor), written to disk as PNG (+ 16-bit depth PNG, K.json) and measured by the same
+``measure_photo`` the command runs. The truth is the measurement of the true shape in the zero pose. Modes:
+
+- ``rgb_ref``: RGB with an A4 sheet, a card or a marker (scale from the reference object);
+- ``rgbd``: RGB + depth; ``depth``: the depth map alone;
+- ``rgb``: RGB without any reference: unscaled, so only the ratios (width / length) are compared.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import tempfile
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import cv2
+import numpy as np
+import torch
+
+from footmesh.eval import thesis
+from footmesh.measure import FootLandmarks, measure_foot
+from footmesh.model.layer import default_model
+
+MODES = ("rgb_ref", "rgbd", "depth", "rgb")
+REFERENCES = ("a4", "card", "marker")
+EVAL_SEED = 4242
+"""Seed of the test photos (training used seeds 1-3)."""
+BASELINE_MM = {"length": 14.2, "width": 5.3}
+"""DESIGN.md: always answering the population's mean foot."""
+
+
+@dataclass
+class Record:
+    index: int
+    view: tuple[str, int] | None
+    ok: bool
+    error: str = ""
+    length_err: float = math.nan
+    width_err: float = math.nan
+    length_u: float = math.nan
+    width_u: float = math.nan
+    ratio_err: float = math.nan
+    side_ok: bool = False
+    scale_source: str = ""
+    seconds: float = math.nan
+
+
+@dataclass
+class ModeResult:
+    mode: str
+    records: list[Record] = field(default_factory=list)
+
+    def ok(self) -> list[Record]:
+        return [r for r in self.records if r.ok]
+
+    def summary(self) -> dict:
+        ok = self.ok()
+        le = np.array([r.length_err for r in ok])
+        we = np.array([r.width_err for r in ok])
+        lu = np.array([r.length_u for r in ok])
+        wu = np.array([r.width_u for r in ok])
+        scaled = np.isfinite(le)
+        out = {
+            "photos": len(self.records),
+            "measured": len(ok),
+            "failed": {r.index: r.error for r in self.records if not r.ok},
+            "side_accuracy": float(np.mean([r.side_ok for r in ok])) if ok else math.nan,
+            "seconds_median": float(np.median([r.seconds for r in ok])) if ok else math.nan,
+            "ratio_mae": float(np.nanmean([abs(r.ratio_err) for r in ok])) if ok else math.nan,
+        }
+        if scaled.any():
+            out.update(
+                {
+                    "length_mae_mm": float(np.mean(np.abs(le[scaled]))),
+                    "length_sd_mm": float(np.std(np.abs(le[scaled]))),
+                    "length_bias_mm": float(np.mean(le[scaled])),
+                    "width_mae_mm": float(np.mean(np.abs(we[scaled]))),
+                    "width_sd_mm": float(np.std(np.abs(we[scaled]))),
+                    "width_bias_mm": float(np.mean(we[scaled])),
+                    "within_half_size": float(np.mean(np.abs(le[scaled]) <= 4.23)),
+                    "length_within_1u": float(np.mean(np.abs(le[scaled]) <= lu[scaled])),
+                    "width_within_1u": float(np.mean(np.abs(we[scaled]) <= wu[scaled])),
+                    "scale_sources": {s: sum(r.scale_source == s for r in ok) for s in {r.scale_source for r in ok}},
+                }
+            )
+        return out
+
+
+def true_measurements(shape: np.ndarray, side: str) -> dict[str, float]:
+    """The eight measurements of the true shape in the zero pose, mm."""
+    model = default_model()
+    with torch.no_grad():
+        out = model(torch.as_tensor(shape, dtype=torch.float32)[None], side=side)
+    v, j = out.vertices[0].double().numpy(), out.joints[0].double().numpy()
+    return measure_foot(v, model.faces(side).numpy(), FootLandmarks.from_joints(j), side=side).values_mm()
+
+
+def _write_inputs(sample: dict, folder: Path, with_depth: bool) -> dict:
+    folder.mkdir(parents=True, exist_ok=True)
+    cv2.imwrite(str(folder / "photo.png"), sample["rgb"][..., ::-1])
+    K = sample["K"]
+    h, w = sample["rgb"].shape[:2]
+    k_json = {"fx": K[0, 0], "fy": K[1, 1], "cx": K[0, 2], "cy": K[1, 2], "width": w, "height": h}
+    (folder / "K.json").write_text(json.dumps({k: float(v) for k, v in k_json.items()}))
+    paths = {"image": folder / "photo.png", "intrinsics": folder / "K.json"}
+    if with_depth:
+        cv2.imwrite(str(folder / "depth.png"), sample["depth"])
+        paths["depth"] = folder / "depth.png"
+    return paths
+
+
+def evaluate_mode(mode: str, n: int, size: int, views: str = "random", progress: bool = True) -> ModeResult:
+    """Measure ``n`` synthetic photos of ``mode`` with the full pipeline."""
+    from tqdm import tqdm
+
+    from footmesh.pipeline import measure_photo
+    from footmesh.synth.render import Renderer
+    from footmesh.synth.scene import SynthConfig, thesis_view
+
+    renderers = {}
+
+    def renderer(reference: str) -> Renderer:
+        if reference not in renderers:
+            renderers[reference] = Renderer(SynthConfig(size=size, reference=reference, views=views))
+        return renderers[reference]
+
+    result = ModeResult(mode)
+    with tempfile.TemporaryDirectory(prefix="footmesh-eval-") as tmp:
+        for i in tqdm(range(n), desc=f"eval measure {mode}", disable=not progress):
+            reference = REFERENCES[i % 3] if mode == "rgb_ref" else "none"
+            sample = renderer(reference).render(EVAL_SEED + MODES.index(mode), i)
+            side = "right" if int(sample["side"]) else "left"
+            view = None
+            if int(sample["view_id"]) >= 0:
+                _, _, axis, deg = thesis_view(int(sample["view_id"]), side)
+                view = (axis, deg)
+            paths = _write_inputs(sample, Path(tmp) / f"{i}", with_depth=mode in ("rgbd", "depth"))
+            truth = true_measurements(sample["shape"], side)
+            t0 = time.perf_counter()
+            try:
+                res = measure_photo(
+                    paths["image"],
+                    Path(tmp) / f"{i}" / "out",
+                    depth=paths.get("depth"),
+                    intrinsics=paths["intrinsics"],
+                    input={"rgb_ref": "rgb", "rgb": "rgb"}.get(mode, mode),
+                )
+            except ValueError as exc:
+                result.records.append(Record(i, view, False, str(exc)))
+                continue
+            rec = Record(i, view, True, seconds=time.perf_counter() - t0, scale_source=res["scale_source"])
+            rec.side_ok = res["side"] == side
+            m = res["measurements"]
+            length, width = m["stick_length"]["value_mm"], m["ball_width"]["value_mm"]
+            if length is not None:
+                rec.length_err = length - truth["stick_length"]
+                rec.width_err = width - truth["ball_width"]
+                rec.length_u = m["stick_length"]["uncertainty_mm"] or math.nan
+                rec.width_u = m["ball_width"]["uncertainty_mm"] or math.nan
+            ratio = res["ratios"].get("ball_width/stick_length")
+            if ratio is not None:
+                rec.ratio_err = ratio - truth["ball_width"] / truth["stick_length"]
+            result.records.append(rec)
+    return result
+
+
+def format_tables(results: dict[str, ModeResult]) -> str:
+    """Table 4.7 (and 4.8/4.9 for thesis viewpoints) in Markdown, ours beside the thesis'."""
+    thesis_key = {"rgb_ref": "rgb", "rgbd": "rgbd", "depth": "depth", "rgb": "rgb"}
+    lines = [
+        "Table 4.7: foot length and ball width error, mm: mean absolute (SD); thesis: ISM, same input",
+        "",
+        "| input | photos | measured | length ours | length thesis | width ours | width thesis | within half a "
+        "size | length within 1 u | width within 1 u | s / photo |",
+        "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
+    ]
+    for mode, res in results.items():
+        s = res.summary()
+        t = thesis.MEASURE_MM[thesis_key[mode]]
+        tl, tw = f"{t['length'][0]:.1f} ({t['length'][1]:.1f})", f"{t['width'][0]:.1f} ({t['width'][1]:.1f})"
+        if "length_mae_mm" in s:
+            lines.append(
+                f"| {mode} | {s['photos']} | {s['measured']} | **{s['length_mae_mm']:.2f}** ({s['length_sd_mm']:.2f}) "
+                f"| {tl} | **{s['width_mae_mm']:.2f}** ({s['width_sd_mm']:.2f}) | {tw} | "
+                f"{100 * s['within_half_size']:.0f} % | {100 * s['length_within_1u']:.0f} % | "
+                f"{100 * s['width_within_1u']:.0f} % | {s['seconds_median']:.2f} |"
+            )
+        else:
+            lines.append(
+                f"| {mode} (unscaled: width/length MAE {s['ratio_mae']:.4f}) | {s['photos']} | {s['measured']} | "
+                f"- | {tl} | - | {tw} | - | - | - | {s['seconds_median']:.2f} |"
+            )
+    lines.append(
+        f"| population mean foot (DESIGN.md baseline) | | | {BASELINE_MM['length']:.1f} | | {BASELINE_MM['width']:.1f} "
+        "| | | | | |"
+    )
+    for mode, res in results.items():
+        failed = res.summary()["failed"]
+        if failed:
+            reasons: dict[str, int] = {}
+            for msg in failed.values():
+                reasons[msg.split(";")[0][:90]] = reasons.get(msg.split(";")[0][:90], 0) + 1
+            lines.append("")
+            lines.append(
+                f"{mode}: {len(failed)} photo(s) refused: " + "; ".join(f"{k} ({v})" for k, v in reasons.items())
+            )
+    by_view = {m: r for m, r in results.items() if any(rec.view for rec in r.records)}
+    if by_view:
+        for what, table, attr in (
+            ("4.8", thesis.LENGTH_MM_BY_VIEW, "length_err"),
+            ("4.9", thesis.WIDTH_MM_BY_VIEW, "width_err"),
+        ):
+            name = "length" if attr == "length_err" else "width"
+            lines += ["", f"Table {what}: {name} error per thesis viewpoint, mean abs (SD) mm, ours | thesis", ""]
+            lines.append("| axis | deg | " + " | ".join(f"{m} ours | thesis" for m in by_view) + " |")
+            lines.append("|---|---:|" + "---:|---:|" * len(by_view))
+            for key in sorted(table, key=lambda a: (a[0], a[1])):
+                cells = []
+                for mode, res in by_view.items():
+                    errs = np.abs([getattr(r, attr) for r in res.ok() if r.view == key])
+                    errs = errs[np.isfinite(errs)]
+                    total = sum(r.view == key for r in res.records)
+                    ours = (
+                        f"{errs.mean():.1f} ({errs.std():.1f}) [{len(errs)}/{total}]" if len(errs) else f"- [0/{total}]"
+                    )
+                    t = table[key][thesis_key[mode]]
+                    cells.append(f"{ours} | {t[0]:.1f} ({t[1]:.1f})")
+                lines.append(f"| {key[0]} | {key[1]} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+def run_eval(
+    modes: list[str], n: int, size: int, views: str, json_out: str | None = None, progress: bool = True
+) -> str:
+    """Evaluate the modes and return the tables (and write per-photo records as JSON)."""
+    torch.set_num_threads(max(1, torch.get_num_threads()))
+    results = {m: evaluate_mode(m, n, size, views, progress) for m in modes}
+    if json_out:
+        from dataclasses import asdict
+
+        from footmesh.report import write_json
+
+        payload = {m: {"summary": r.summary(), "records": [asdict(x) for x in r.records]} for m, r in results.items()}
+        write_json(Path(json_out), json.loads(json.dumps(payload, default=str)))
+    return format_tables(results)

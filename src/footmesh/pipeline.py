@@ -1,0 +1,398 @@
+"""The whole job on one photo: load -> cues -> fit -> canonical -> measure -> sizes -> report.
+
+``measure_photo(image, out_dir, depth=..., intrinsics=..., side=...)`` writes ``result.json``, ``mesh.obj``,
+``mesh.glb``, ``canonical.obj`` and ``overlay.png`` into ``out_dir`` and returns the result dictionary (the JSON
+contract of ``footmesh measure``, docs/measure.md). Bad input raises ``PipelineError`` (a ``ValueError``) with one
+sentence saying what is wrong and what to do.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import os
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import cv2
+import numpy as np
+import torch
+
+from footmesh import __version__, report
+from footmesh.config import MeasureConfig
+from footmesh.cues import Cues
+from footmesh.cues.predict import predict_cues
+from footmesh.load import Photo, load_photo
+from footmesh.measure import MEASUREMENT_NAMES, FootLandmarks, Measurements, measure_foot
+from footmesh.model import skeleton as sk
+from footmesh.model.layer import default_model
+from footmesh.sizes import shoe_sizes
+
+log = logging.getLogger("footmesh.pipeline")
+
+RESULT_FORMAT = "footmesh-result-1"
+
+
+class PipelineError(ValueError):
+    """The photo cannot be measured (no foot, two feet, foot cut off...); the message says why."""
+
+
+@dataclass(frozen=True)
+class CropBox:
+    """A square window ``[x0, x0 + side) x [y0, y0 + side)`` of an image, px (may reach past its edges)."""
+
+    x0: int
+    y0: int
+    side: int
+
+    def cut(self, image: np.ndarray, fill: float | None = None) -> np.ndarray:
+        """The window of an (H, W[, C]) image; outside the image: edge pixels, or ``fill`` when given."""
+        h, w = image.shape[:2]
+        pad = max(0, -self.x0, -self.y0, self.x0 + self.side - w, self.y0 + self.side - h)
+        if pad:
+            widths = ((pad, pad), (pad, pad)) + ((0, 0),) * (image.ndim - 2)
+            if fill is None:
+                image = np.pad(image, widths, mode="edge")
+            else:
+                image = np.pad(image, widths, mode="constant", constant_values=fill)
+        y, x = self.y0 + pad, self.x0 + pad
+        return image[y : y + self.side, x : x + self.side]
+
+
+@dataclass
+class Located:
+    """The foot found in a photo: its crop and the cues of the crop mapped to the photo's pixels."""
+
+    crop: CropBox
+    cues: Cues
+    mask: np.ndarray = field(repr=False)
+
+
+def _cues_in_photo(cues: Cues, crop: CropBox, width: int, height: int) -> Cues:
+    """Cues of a crop -> cues in the whole photo's pixels (silhouette 0 outside the crop)."""
+    sil = np.zeros((height, width), np.float32)
+    x0, y0 = max(crop.x0, 0), max(crop.y0, 0)
+    x1, y1 = min(crop.x0 + crop.side, width), min(crop.y0 + crop.side, height)
+    if x1 > x0 and y1 > y0:
+        sil[y0:y1, x0:x1] = cues.silhouette[y0 - crop.y0 : y1 - crop.y0, x0 - crop.x0 : x1 - crop.x0]
+    joints = cues.joints2d_px + np.array([crop.x0, crop.y0], np.float32)
+    return Cues(sil, joints.astype(np.float32), cues.joint_confidence, cues.input)
+
+
+def _components(mask: np.ndarray) -> tuple[int, np.ndarray, np.ndarray]:
+    n, labels, stats, _ = cv2.connectedComponentsWithStats(mask.astype(np.uint8), connectivity=8)
+    return n, labels, stats
+
+
+def locate_foot(rgb: np.ndarray | None, depth: np.ndarray | None, kind: str, config: MeasureConfig) -> Located:
+    """Find the foot: cues on the whole photo (padded square), then again on a square crop framed like the
+    training images (the foot's longer side ``config.crop_fill`` of the crop)."""
+    ref = rgb if rgb is not None else depth
+    h, w = ref.shape[:2]
+    side = max(h, w)
+    whole = CropBox((w - side) // 2, (h - side) // 2, side)
+    first = predict_cues(
+        kind,
+        None if rgb is None else whole.cut(rgb),
+        None if depth is None else whole.cut(depth, fill=0.0),
+    )
+    mask = _cues_in_photo(first, whole, w, h).silhouette >= 0.5
+    n, labels, stats = _components(mask)
+    areas = stats[1:, cv2.CC_STAT_AREA] if n > 1 else np.zeros(0)
+    if areas.size == 0 or areas.max() < config.min_foot_fraction * h * w:
+        raise PipelineError(
+            "no foot found in the photo; photograph one bare foot from above, standing on the floor, "
+            "filling about a third of the picture"
+        )
+    order = np.argsort(areas)[::-1]
+    big = 1 + order[0]
+    if len(order) > 1 and areas[order[1]] >= config.second_foot_ratio * areas[order[0]]:
+        raise PipelineError("two feet (or two foot-like regions) found; photograph one foot at a time")
+    x, y, bw, bh = stats[big, :4]
+    crop_side = int(math.ceil(max(bw, bh) / config.crop_fill))
+    cx, cy = x + bw / 2, y + bh / 2
+    crop = CropBox(int(round(cx - crop_side / 2)), int(round(cy - crop_side / 2)), crop_side)
+    second = predict_cues(
+        kind,
+        None if rgb is None else crop.cut(rgb),
+        None if depth is None else crop.cut(depth, fill=0.0),
+    )
+    cues = _cues_in_photo(second, crop, w, h)
+    mask = cues.silhouette >= 0.5
+    n, labels, stats = _components(mask)
+    if n <= 1:
+        raise PipelineError("no foot found in the photo (the foot region vanished on a closer look)")
+    keep = 1 + np.argmax(stats[1:, cv2.CC_STAT_AREA])
+    mask = labels == keep
+    return Located(crop, Cues(np.where(mask, cues.silhouette, 0.0).astype(np.float32), *_rest(cues)), mask)
+
+
+def _rest(cues: Cues) -> tuple[np.ndarray, np.ndarray, str]:
+    return cues.joints2d_px, cues.joint_confidence, cues.input
+
+
+def check_framing(located: Located, width: int, height: int, config: MeasureConfig) -> None:
+    """Refuse a foot cut off by the photo's edge (its length could not be measured)."""
+    m = located.mask
+    border = np.concatenate([m[0], m[-1], m[:, 0], m[:, -1]])
+    ends = located.cues.joints2d_px[[3, 6, 17]]  # big toe tip, second toe tip, heel: the ends of the length
+    margin = config.edge_margin_px
+    outside = (ends[:, 0] < -margin) | (ends[:, 0] > width - 1 + margin)
+    outside |= (ends[:, 1] < -margin) | (ends[:, 1] > height - 1 + margin)
+    if border.sum() > config.max_border_pixels or outside.any():
+        raise PipelineError(
+            "the foot is cut off by the edge of the photo; step back or zoom out so that the whole foot, "
+            "heel to toes, is in the picture"
+        )
+
+
+def working_photo(photo: Photo, max_side: int) -> tuple[np.ndarray, np.ndarray | None, np.ndarray, float]:
+    """The photo, its depth and intrinsics at no more than ``max_side`` px (the pipeline's working resolution).
+
+    Returns rgb, depth (mm, nearest neighbour), K (3, 3) and the factor from working to photo pixels.
+    """
+    h, w = photo.rgb.shape[:2]
+    factor = max(h, w) / max_side if max(h, w) > max_side else 1.0
+    if factor == 1.0:
+        return photo.rgb, photo.depth_mm, photo.intrinsics.matrix(), 1.0
+    ww, wh = int(round(w / factor)), int(round(h / factor))
+    rgb = cv2.resize(photo.rgb, (ww, wh), interpolation=cv2.INTER_AREA)
+    depth = None
+    if photo.depth_mm is not None:
+        depth = cv2.resize(photo.depth_mm, (ww, wh), interpolation=cv2.INTER_NEAREST)
+    K = photo.intrinsics.resized(ww, wh).matrix()
+    return rgb, depth, K, w / ww
+
+
+def measure_photo(
+    image: str | os.PathLike,
+    out_dir: str | os.PathLike,
+    *,
+    depth: str | os.PathLike | None = None,
+    depth_unit: str = "mm",
+    intrinsics: str | os.PathLike | None = None,
+    side: str = "auto",
+    input: str = "auto",
+    config: MeasureConfig | None = None,
+) -> dict:
+    """Measure the foot in one photo; write the result files into ``out_dir`` and return the result dict.
+
+    ``input``: which networks to use: ``auto`` (RGB-D when a depth map is given, else RGB), or ``rgb``,
+    ``rgbd``, ``depth`` (the depth map alone; the photo only serves for the overlay).
+    """
+    config = config or MeasureConfig()
+    if side not in ("left", "right", "auto"):
+        raise PipelineError(f"side must be left, right or auto, got {side!r}")
+    start = time.perf_counter()
+    photo = load_photo(image, depth=depth, depth_unit=depth_unit, intrinsics=intrinsics)
+    result, files = run_pipeline(photo, side, config, input)
+    result["seconds"] = round(time.perf_counter() - start, 3)
+    write_outputs(Path(out_dir), result, files)
+    return result
+
+
+@dataclass
+class _Files:
+    """What ``write_outputs`` writes besides result.json."""
+
+    vertices_cam: np.ndarray
+    canonical_vertices: np.ndarray
+    faces: np.ndarray
+    canonical_faces: np.ndarray
+    overlay: np.ndarray
+
+
+def run_pipeline(photo: Photo, side: str, config: MeasureConfig, input: str = "auto") -> tuple[dict, _Files]:
+    """Everything after loading: the result dict and the arrays of the files to write."""
+    from footmesh.cues.reference import detect_reference
+    from footmesh.fit import fit_foot
+
+    timings = {}
+    t = time.perf_counter()
+    rgb, depth, K, to_photo = working_photo(photo, config.working_max_side)
+    h, w = rgb.shape[:2]
+    kind = input if input != "auto" else ("rgbd" if depth is not None else "rgb")
+    if kind in ("rgbd", "depth") and depth is None:
+        raise PipelineError(f"{kind} input needs a depth map (--depth)")
+    with torch.inference_mode():
+        located = locate_foot(None if kind == "depth" else rgb, None if kind == "rgb" else depth, kind, config)
+    check_framing(located, w, h, config)
+    timings["cues_s"] = time.perf_counter() - t
+
+    t = time.perf_counter()
+    reference = None
+    messages: list[str] = list(photo.info.notes) if hasattr(photo, "info") else []
+    if kind == "rgb":
+        exclude = cv2.dilate(located.mask.astype(np.uint8), np.ones((15, 15), np.uint8)) > 0
+        reference = detect_reference(rgb, K, exclude_mask=exclude)
+    timings["reference_s"] = time.perf_counter() - t
+
+    t = time.perf_counter()
+    fit = fit_foot(
+        located.cues,
+        K,
+        depth_mm=None if kind == "rgb" else depth,
+        cam_from_floor=None if reference is None else reference.cam_from_floor,
+        side=side,
+    )
+    timings["fit_s"] = time.perf_counter() - t
+
+    t = time.perf_counter()
+    model = default_model()
+    canonical = fit.canonical_vertices(model)
+    with torch.no_grad():
+        rest = model(torch.as_tensor(fit.shape, dtype=torch.float32)[None], side=fit.side)
+    rest_joints = rest.joints[0].double().numpy()
+    faces = model.faces(fit.side).numpy()
+    measured = measure_foot(canonical, faces, FootLandmarks.from_joints(rest_joints), side=fit.side)
+    scale_source = "depth" if kind != "rgb" else (reference.kind if reference is not None else "none")
+    if fit.scaled:
+        measured = measured.with_uncertainties(
+            measurement_uncertainty(fit, measured, scale_source, reference, model, config)
+        )
+        sizes = shoe_sizes(measured.stick_length.value_mm, measured.ball_width.value_mm)
+    else:
+        measured = measured.as_unscaled()
+        sizes = shoe_sizes(None)
+        messages.append(
+            "unscaled: no depth map and no reference object found, so millimetres and shoe sizes are not given; "
+            "put an A4 sheet, a bank card or the printed marker on the floor beside the foot, or use a depth photo"
+        )
+    timings["measure_s"] = time.perf_counter() - t
+
+    joints2d_photo = (located.cues.joints2d_px + 0.5) * to_photo - 0.5
+    overlay = draw_overlay(rgb, located, fit, K, reference)
+    result = {
+        "format": RESULT_FORMAT,
+        "version": __version__,
+        "input_sha256": dict(photo.input_sha256),
+        "image": {"width": int(photo.rgb.shape[1]), "height": int(photo.rgb.shape[0])},
+        "intrinsics": {**photo.intrinsics.to_dict()},
+        "input": kind,
+        "side": fit.side,
+        "side_losses": {k: float(v) for k, v in fit.side_losses.items()},
+        "scale_source": scale_source,
+        "scaled": bool(fit.scaled),
+        "reference": None if reference is None else _reference_dict(reference, to_photo),
+        "measurements": measured.to_dict(),
+        "ratios": measured.ratios(),
+        "sizes": sizes.to_dict(),
+        "joints2d_px": joints2d_photo.round(2).tolist(),
+        "joint_confidence": np.round(located.cues.joint_confidence, 3).tolist(),
+        "joints3d_mm": np.round(fit.joints_cam, 2).tolist() if fit.scaled else None,
+        "angles": dict(zip(sk.DOF_NAMES, np.round(fit.angles, 4).tolist(), strict=True)),
+        "shape": np.round(fit.shape, 4).tolist(),
+        "fit": {"loss": float(fit.loss), "iterations": int(fit.iterations), "terms": fit.loss_terms},
+        "timings_s": {k: round(v, 3) for k, v in timings.items()},
+        "messages": messages,
+        "units": "mm" if fit.scaled else "unscaled (mesh in arbitrary units)",
+        "files": {
+            "result_json": "result.json",
+            "mesh_obj": "mesh.obj",
+            "mesh_glb": "mesh.glb",
+            "canonical_obj": "canonical.obj",
+            "overlay_png": "overlay.png",
+        },
+    }
+    files = _Files(fit.vertices_cam, canonical, model.faces(fit.side).numpy(), faces, overlay)
+    return result, files
+
+
+def _reference_dict(reference, to_photo: float) -> dict:
+    return {
+        "kind": reference.kind,
+        "corners_px": ((np.asarray(reference.corners_px) + 0.5) * to_photo - 0.5).round(2).tolist(),
+        "size_mm": list(reference.size_mm),
+        "scale_rel_sd": float(reference.scale_rel_sd),
+    }
+
+
+def measurement_uncertainty(fit, measured: Measurements, scale_source: str, reference, model, config) -> dict:
+    """One-SD uncertainty (mm) of each measurement: the fit's shape covariance propagated through the
+    measurements (shape samples), times the calibration factor of the scale source (``MeasureConfig``), and
+    the reference object's scale uncertainty."""
+    rng = np.random.default_rng(0)
+    shapes = fit.sample_shapes(config.uncertainty_samples, rng)
+    values = []
+    faces = model.faces(fit.side).numpy()
+    with torch.no_grad():
+        out = model(torch.as_tensor(shapes, dtype=torch.float32), side=fit.side)
+    for v, j in zip(out.vertices.double().numpy(), out.joints.double().numpy(), strict=True):
+        try:
+            m = measure_foot(v, faces, FootLandmarks.from_joints(j), side=fit.side)
+        except ValueError:
+            continue
+        values.append([m.values_mm()[n] for n in MEASUREMENT_NAMES])
+    sd = np.std(np.asarray(values, float), axis=0) if len(values) > 2 else np.full(len(MEASUREMENT_NAMES), np.nan)
+    factor = config.uncertainty_factor.get(scale_source, 1.0)
+    floor = config.uncertainty_floor_mm
+    rel = float(reference.scale_rel_sd) if reference is not None else 0.0
+    out_u = {}
+    for name, s in zip(MEASUREMENT_NAMES, sd, strict=True):
+        value = measured.values_mm()[name]
+        u = math.hypot(factor * float(s), rel * float(value), floor)
+        out_u[name] = round(u, 2)
+    return out_u
+
+
+JOINT_COLOURS = [
+    (255, 255, 255),
+    *[(255, 80, 80)] * 3,
+    *[(255, 170, 0)] * 3,
+    *[(230, 230, 0)] * 3,
+    *[(0, 200, 0)] * 3,
+    *[(0, 160, 255)] * 3,
+    (200, 0, 255),
+    (200, 0, 255),
+]
+
+
+def draw_overlay(rgb: np.ndarray, located: Located, fit, K: np.ndarray, reference) -> np.ndarray:
+    """The photo with the silhouette (cyan), the fitted mesh's outline (magenta), the joints (by toe) and the
+    reference object (yellow)."""
+    out = rgb.copy()
+    h, w = out.shape[:2]
+    thick = max(1, int(round(max(h, w) / 400)))
+    contours, _ = cv2.findContours(located.mask.astype(np.uint8), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+    cv2.drawContours(out, contours, -1, (0, 255, 255), thick)
+    v = fit.vertices_cam
+    if np.all(v[:, 2] > 0):
+        uv = (v[:, :2] / v[:, 2:3]) @ K[:2, :2].T + K[:2, 2]
+        faces = default_model().faces(fit.side).numpy()
+        raster = np.zeros((h, w), np.uint8)
+        tris = np.round(uv[faces] * 4).astype(np.int32)  # 2 fractional bits
+        cv2.fillPoly(raster, list(tris), 1, lineType=cv2.LINE_8, shift=2)
+        mesh_contours, _ = cv2.findContours(raster, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+        cv2.drawContours(out, mesh_contours, -1, (255, 0, 255), thick)
+    joints = located.cues.joints2d_px
+    for child, parent in enumerate(sk.PARENTS):
+        if parent >= 0:
+            a, b = joints[parent], joints[child]
+            cv2.line(out, _pt(a), _pt(b), JOINT_COLOURS[child], thick, cv2.LINE_AA)
+    for j, p in enumerate(joints):
+        cv2.circle(out, _pt(p), 2 * thick + 1, JOINT_COLOURS[j], -1, cv2.LINE_AA)
+    if reference is not None:
+        corners = np.asarray(reference.corners_px)
+        cv2.polylines(out, [np.round(corners).astype(np.int32)], True, (255, 255, 0), thick, cv2.LINE_AA)
+    return out
+
+
+def _pt(p: np.ndarray) -> tuple[int, int]:
+    return int(round(float(p[0]))), int(round(float(p[1])))
+
+
+def write_outputs(out: Path, result: dict, files: _Files) -> None:
+    """Write the meshes, the overlay and result.json (last, so a result.json means a complete folder)."""
+    import trimesh
+
+    out.mkdir(parents=True, exist_ok=True)
+    report.write_mesh(out / "mesh.obj", files.vertices_cam, files.faces)
+    report.write_mesh(out / "canonical.obj", files.canonical_vertices, files.canonical_faces)
+    mesh = trimesh.Trimesh(files.vertices_cam, files.faces, process=False)
+    with report.atomic_path(out / "mesh.glb") as tmp:
+        tmp.write_bytes(mesh.export(file_type="glb"))
+    with report.atomic_path(out / "overlay.png") as tmp:
+        ok, buf = cv2.imencode(".png", files.overlay[..., ::-1])
+        tmp.write_bytes(buf.tobytes())
+    report.write_json(out / "result.json", result)
