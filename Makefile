@@ -6,7 +6,7 @@ STAMP := $(VENV)/.installed
 # The CPU build of torch lies on this machine's disk; pinning it keeps pip from fetching a CUDA build.
 TORCH := torch==2.13.0
 
-.PHONY: demo test lint format bench model clean venv
+.PHONY: demo test lint format bench model clean venv browser
 
 venv: $(STAMP)
 
@@ -20,7 +20,7 @@ $(STAMP): pyproject.toml Makefile
 demo: $(STAMP)
 	$(BIN)/footmesh demo --out demo_out
 
-test: $(STAMP)
+test: $(STAMP) browser
 	$(BIN)/ruff check src tests benchmarks
 	$(BIN)/ruff format --check src tests benchmarks
 	# two test processes on two cores: one BLAS/OpenMP thread each, or they fight over the cores
@@ -29,6 +29,10 @@ test: $(STAMP)
 lint: $(STAMP)
 	$(BIN)/ruff check --fix src tests benchmarks
 	$(BIN)/ruff format src tests benchmarks
+
+# Debian's chromium for the web app's browser test (skipped with a reason where it cannot be installed)
+browser:
+	bash scripts/install_browser.sh
 
 bench: $(STAMP)
 	$(BIN)/python -m benchmarks

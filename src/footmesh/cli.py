@@ -26,6 +26,9 @@ def build_parser() -> argparse.ArgumentParser:
     _add_synth_command(sub)
     _add_train_commands(sub)
     _add_eval_commands(sub)
+    from footmesh.web.cli import add_serve_command  # FastAPI is imported only when `serve` runs
+
+    add_serve_command(sub)
     return parser
 
 

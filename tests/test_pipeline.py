@@ -1,0 +1,204 @@
+"""The measure pipeline: cropping, framing checks, the batch command, and whole photos with known truth."""
+
+from __future__ import annotations
+
+import json
+
+import cv2
+import numpy as np
+import pytest
+
+from footmesh.batch import output_folders, summary_table
+from footmesh.cli import main
+from footmesh.config import MeasureConfig
+from footmesh.cues import Cues
+from footmesh.examples import examples
+from footmesh.pipeline import CropBox, Located, PipelineError, _cues_in_photo, check_framing
+
+CONTRACT_KEYS = {
+    "version",
+    "input_sha256",
+    "side",
+    "scale_source",
+    "measurements",
+    "ratios",
+    "sizes",
+    "joints2d_px",
+    "joints3d_mm",
+    "angles",
+    "files",
+}
+MEASUREMENTS = {
+    "stick_length",
+    "ball_width",
+    "heel_width",
+    "toe_height",
+    "arch_height",
+    "instep_height",
+    "ball_girth",
+    "instep_girth",
+}
+
+
+def test_crop_pads_with_edge_pixels_or_fill():
+    image = np.arange(16, dtype=np.float32).reshape(4, 4)
+    crop = CropBox(-1, -1, 3)
+    assert crop.cut(image).tolist() == [[0, 0, 1], [0, 0, 1], [4, 4, 5]]
+    assert crop.cut(image, fill=0.0).tolist() == [[0, 0, 0], [0, 0, 1], [0, 4, 5]]
+    assert CropBox(2, 2, 4).cut(image, fill=-1.0).shape == (4, 4)
+
+
+def test_cues_of_a_crop_land_in_photo_pixels():
+    sil = np.zeros((10, 10), np.float32)
+    sil[2:4, 3:6] = 1
+    joints = np.tile(np.array([[1.0, 2.0]], np.float32), (18, 1))
+    cues = Cues(sil, joints, np.ones(18, np.float32), "rgb")
+    photo = _cues_in_photo(cues, CropBox(-2, 5, 10), width=20, height=12)
+    assert photo.silhouette.shape == (12, 20)
+    assert photo.silhouette.sum() == sil.sum()
+    assert photo.silhouette[5 + 2, -2 + 3] == 1
+    assert np.allclose(photo.joints2d_px[0], [-1.0, 7.0])
+
+
+def _located(mask: np.ndarray, joints: np.ndarray) -> Located:
+    cues = Cues(mask.astype(np.float32), joints.astype(np.float32), np.ones(18, np.float32), "rgb")
+    return Located(CropBox(0, 0, mask.shape[0]), cues, mask)
+
+
+def test_framing_refuses_a_foot_cut_off_by_the_edge():
+    mask = np.zeros((100, 100), bool)
+    mask[30:60, 20:80] = True
+    joints = np.full((18, 2), 50.0)
+    check_framing(_located(mask, joints), 100, 100, MeasureConfig())  # well inside: fine
+    cut = mask.copy()
+    cut[30:60, 0:80] = True
+    with pytest.raises(PipelineError, match="cut off"):
+        check_framing(_located(cut, joints), 100, 100, MeasureConfig())
+    joints[17] = [-20.0, 50.0]  # heel beyond the left edge
+    with pytest.raises(PipelineError, match="cut off"):
+        check_framing(_located(mask, joints), 100, 100, MeasureConfig())
+
+
+def test_output_folders_one_per_photo_and_unique(tmp_path):
+    assert output_folders(["a/x.jpg"], tmp_path) == [tmp_path]
+    names = [p.name for p in output_folders(["a/x.jpg", "b/x.jpg", "c/y.png"], tmp_path)]
+    assert names == ["x", "x-2", "y"]
+
+
+def test_summary_table_lists_unscaled_and_failed_photos():
+    unscaled = {
+        "side": "left",
+        "scale_source": "none",
+        "measurements": {n: {"value_mm": None, "uncertainty_mm": None} for n in MEASUREMENTS},
+        "sizes": {"eu": None},
+        "messages": ["unscaled: no reference"],
+    }
+    text = summary_table([("a.jpg", unscaled, None), ("b.jpg", None, "no foot found")])
+    assert "unscaled" in text and "failed: no foot found" in text
+    assert len(text.splitlines()) == 3
+
+
+# --- whole photos (the shipped networks) ----------------------------------------------------------------------
+
+LENGTH_TOLERANCE_MM = {"a4_left": 6.0, "depth_right": 4.0, "card_right": 8.0}
+"""Per bundled photo: the pipeline must measure the length within this (one photo each, so with margin over the
+mean errors of ``footmesh eval measure``)."""
+
+
+@pytest.fixture(scope="module")
+def measured(tmp_path_factory):
+    out = tmp_path_factory.mktemp("measure")
+    results = {}
+    for ex in examples():
+        argv = ["measure", str(ex.image), "--out", str(out / ex.name)]
+        if ex.depth is not None:
+            argv += ["--depth", str(ex.depth)]
+        if ex.intrinsics is not None:
+            argv += ["--intrinsics", str(ex.intrinsics)]
+        assert main(argv) == 0, ex.name
+        results[ex.name] = (ex, json.loads((out / ex.name / "result.json").read_text()), out / ex.name)
+    return results
+
+
+@pytest.mark.slow
+def test_bundled_photos_measure_close_to_the_truth(measured):
+    for name, (ex, result, folder) in measured.items():
+        assert CONTRACT_KEYS <= set(result), name
+        assert set(result["measurements"]) == MEASUREMENTS
+        assert result["side"] == ex.side, name
+        assert result["scale_source"] == {"a4_left": "a4", "depth_right": "depth", "card_right": "card"}[name]
+        length = result["measurements"]["stick_length"]
+        assert abs(length["value_mm"] - ex.truth_mm["stick_length"]) <= LENGTH_TOLERANCE_MM[name], (name, length)
+        assert length["uncertainty_mm"] > 0
+        assert np.asarray(result["joints2d_px"]).shape == (18, 2)
+        assert np.asarray(result["joints3d_mm"]).shape == (18, 3)
+        for key in ("mesh_obj", "mesh_glb", "overlay_png", "result_json"):
+            assert (folder / result["files"][key]).is_file(), (name, key)
+        assert result["sizes"]["eu"] is not None
+
+
+@pytest.mark.slow
+def test_a_photo_without_reference_is_unscaled(tmp_path):
+    from footmesh.eval.measure import true_measurements
+    from footmesh.synth.render import Renderer
+    from footmesh.synth.scene import SynthConfig
+
+    renderer = Renderer(SynthConfig(size=640, reference="none"))
+    index = 0
+    while bool((sample := renderer.render(99, index))["lifted"]):
+        index += 1
+    cv2.imwrite(str(tmp_path / "photo.png"), sample["rgb"][..., ::-1])
+    K = sample["K"]
+    k_json = {"fx": K[0, 0], "fy": K[1, 1], "cx": K[0, 2], "cy": K[1, 2], "width": 640, "height": 640}
+    (tmp_path / "K.json").write_text(json.dumps(k_json))
+    argv = ["measure", str(tmp_path / "photo.png"), "--intrinsics", str(tmp_path / "K.json")]
+    assert main([*argv, "--out", str(tmp_path / "out")]) == 0
+    result = json.loads((tmp_path / "out" / "result.json").read_text())
+    assert result["scale_source"] == "none"
+    assert all(m["value_mm"] is None for m in result["measurements"].values())
+    assert result["sizes"]["eu"] is None and result["joints3d_mm"] is None
+    assert any("unscaled" in m for m in result["messages"])
+    truth = true_measurements(sample["shape"], "right" if int(sample["side"]) else "left")
+    ratio = truth["ball_width"] / truth["stick_length"]
+    assert abs(result["ratios"]["ball_width/stick_length"] - ratio) < 0.03
+
+
+def test_photo_without_a_foot_is_refused(tmp_path, capsys):
+    rng = np.random.default_rng(0)
+    floor = (rng.normal(120, 8, (480, 640, 3))).clip(0, 255).astype(np.uint8)
+    path = tmp_path / "floor.png"
+    cv2.imwrite(str(path), floor)
+    assert main(["measure", str(path), "--out", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err
+    assert "no foot" in err and "Traceback" not in err
+    assert not (tmp_path / "out" / "result.json").exists()
+
+
+def test_corrupt_file_and_wrong_depth_are_refused_and_the_rest_is_done(tmp_path, capsys):
+    ex = next(e for e in examples() if e.depth is not None)
+    bad = tmp_path / "broken.jpg"
+    bad.write_bytes(ex.image.read_bytes()[:2000])
+    depth = tmp_path / "small.png"
+    cv2.imwrite(str(depth), np.full((100, 100), 500, np.uint16))
+    assert main(["measure", str(ex.image), "--depth", str(depth), "--out", str(tmp_path / "a")]) == 2
+    assert "depth" in capsys.readouterr().err
+    assert main(["measure", str(bad), "--out", str(tmp_path / "b")]) == 2
+    err = capsys.readouterr().err
+    assert "broken.jpg" in err and "Traceback" not in err
+
+
+@pytest.mark.slow
+def test_batch_goes_on_after_a_bad_photo_and_resumes(tmp_path, capsys):
+    ex = next(e for e in examples() if e.name == "a4_left")
+    bad = tmp_path / "notes.jpg"
+    bad.write_text("not an image")
+    out = tmp_path / "batch"
+    assert main(["measure", str(bad), str(ex.image), "--out", str(out)]) == 2
+    result = out / ex.image.stem / "result.json"
+    assert result.is_file()
+    first = result.stat().st_mtime_ns
+    capsys.readouterr()
+    assert main(["measure", str(bad), str(ex.image), "--out", str(out)]) == 2
+    assert result.stat().st_mtime_ns == first  # already measured: skipped
+    out_text = capsys.readouterr().out
+    assert "failed" in out_text and ex.image.name in out_text

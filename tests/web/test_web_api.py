@@ -1,0 +1,356 @@
+"""The web API with the fake pipeline: good and bad uploads, limits, queue, time limit, isolation, downloads."""
+
+from __future__ import annotations
+
+import hashlib
+import io
+import json
+import multiprocessing
+import threading
+import time
+
+import numpy as np
+import pytest
+import trimesh
+from PIL import Image
+
+pytest.importorskip("fastapi", reason="the web extra (fastapi, python-multipart, httpx) is not installed")
+
+from _fake_pipeline import FakeMeasure, fake_measure  # noqa: E402
+from _stub_pipeline import StubMeasure  # noqa: E402
+from conftest import png_bytes  # noqa: E402
+
+MEASURE = "/api/measure"
+
+
+def post_photo(client, data: bytes, name: str = "foot.jpg", content_type: str = "image/jpeg", **fields):
+    return client.post(MEASURE, files={"photo": (name, data, content_type)}, data=fields)
+
+
+def upload_dirs(tmp_path) -> list:
+    """Request folders still on disk (each request's uploads live in one)."""
+    return [p for p in tmp_path.glob("footmesh-uploads-*/*")]
+
+
+def wait_until(condition, timeout: float = 10.0) -> None:
+    deadline = time.monotonic() + timeout
+    while not condition():
+        if time.monotonic() > deadline:
+            raise AssertionError("condition not reached in time")
+        time.sleep(0.01)
+
+
+# ----------------------------------------------------------------------------------------------------------
+# Good input
+# ----------------------------------------------------------------------------------------------------------
+
+
+def test_good_photo_gives_result_and_downloads(make_client, demo_photo, tmp_path):
+    client = make_client()
+    response = post_photo(client, demo_photo, side="right")
+    assert response.status_code == 200, response.text
+    result = response.json()
+    assert result["side"] == "right"
+    assert result["scale_source"] == "a4"
+    assert result["input_sha256"] == hashlib.sha256(demo_photo).hexdigest()  # the pipeline got the bytes unchanged
+    for m in result["measurements"].values():
+        assert m["value_mm"] > 0 and m["uncertainty_mm"] > 0
+    assert np.asarray(result["joints3d_mm"]).shape == (18, 3)
+    assert result["sizes"]["eu"]["label"].startswith("EU ")
+
+    rid = response.headers["X-Result-Id"]
+    files = result["files"]
+    mesh = client.get(f"/api/results/{rid}/{files['mesh_obj']}")
+    assert mesh.status_code == 200 and "attachment" in mesh.headers["content-disposition"]
+    obj = trimesh.load(io.BytesIO(mesh.content), file_type="obj", process=False)
+    assert len(obj.vertices) > 1000 and len(obj.faces) > 1000
+    glb = client.get(f"/api/results/{rid}/{files['mesh_glb']}")
+    assert glb.content[:4] == b"glTF" and glb.headers["content-type"] == "model/gltf-binary"
+    overlay = client.get(f"/api/results/{rid}/{files['overlay_png']}")
+    assert overlay.headers["content-type"] == "image/png"
+    assert Image.open(io.BytesIO(overlay.content)).size == Image.open(io.BytesIO(demo_photo)).size
+    stored = client.get(f"/api/results/{rid}/{files['result_json']}")
+    assert stored.json() == result == client.get(f"/api/results/{rid}").json()
+    assert upload_dirs(tmp_path) == []  # the request's uploads are gone
+
+
+def test_type_is_checked_by_content_not_name(make_client, demo_photo):
+    response = post_photo(make_client(), demo_photo, name="notes.txt", content_type="text/plain")
+    assert response.status_code == 200, response.text
+
+
+def test_depth_map_and_intrinsics_are_passed_on(make_client, demo_photo):
+    depth = png_bytes(np.full((320, 320), 600, np.uint16))  # 16-bit PNG, mm
+    intrinsics = json.dumps({"fx": 350.0, "fy": 350.0, "cx": 160.0, "cy": 160.0}).encode()
+    files = {
+        "photo": ("foot.jpg", demo_photo, "image/jpeg"),
+        "depth": ("depth.png", depth, "image/png"),
+        "intrinsics": ("k.json", intrinsics, "application/json"),
+    }
+    response = make_client().post(MEASURE, files=files, data={"depth_unit": "mm"})
+    assert response.status_code == 200, response.text
+    assert response.json()["scale_source"] == "depth"
+
+
+def test_empty_optional_file_fields_are_ignored(make_client, demo_photo):
+    # what a browser sends for a file input left empty: a part with no name and no bytes
+    files = {"photo": ("foot.jpg", demo_photo, "image/jpeg"), "depth": ("", b"", "application/octet-stream")}
+    response = make_client().post(MEASURE, files=files)
+    assert response.status_code == 200, response.text
+    assert response.json()["scale_source"] == "a4"
+
+
+def test_unscaled_result_has_no_millimetres(make_client, demo_photo):
+    response = post_photo(make_client(FakeMeasure(scale_source="none")), demo_photo)
+    assert response.status_code == 200
+    result = response.json()
+    assert all(m["value_mm"] is None for m in result["measurements"].values())
+    assert result["sizes"]["eu"] is None and result["ratios"]
+    assert any("A4" in m for m in result["messages"])
+
+
+# ----------------------------------------------------------------------------------------------------------
+# Bad input: a 4xx with a readable message, and the server keeps serving
+# ----------------------------------------------------------------------------------------------------------
+
+
+def test_corrupt_photo(make_client, demo_photo):
+    client = make_client()
+    truncated = post_photo(client, demo_photo[: len(demo_photo) // 2])
+    assert truncated.status_code == 400
+    assert "corrupt or truncated" in truncated.json()["detail"]
+    garbage = post_photo(client, demo_photo[:20] + bytes(range(256)) * 20)
+    assert garbage.status_code == 400, garbage.text
+    assert "starts like a JPEG file but could not be read" in garbage.json()["detail"]
+    assert post_photo(client, demo_photo).status_code == 200
+
+
+def test_huge_file_refused(make_client, demo_photo):
+    client = make_client(max_upload_bytes=20_000)
+    assert len(demo_photo) > 20_000
+    response = post_photo(client, demo_photo)
+    assert response.status_code == 413
+    assert "larger than the limit of 20 KB" in response.json()["detail"]
+
+
+def test_huge_chunked_upload_refused_while_streaming(make_client, demo_photo):
+    # no Content-Length: the limit must be enforced on the bytes as they arrive
+    client = make_client(max_upload_bytes=20_000)
+    boundary = "footmeshboundary"
+    head = (
+        f'--{boundary}\r\nContent-Disposition: form-data; name="photo"; filename="a.jpg"\r\n'
+        "Content-Type: image/jpeg\r\n\r\n"
+    ).encode()
+    parts = [head, demo_photo, f"\r\n--{boundary}--\r\n".encode()]
+    response = client.post(
+        MEASURE, content=iter(parts), headers={"Content-Type": f"multipart/form-data; boundary={boundary}"}
+    )
+    assert response.status_code == 413, response.text
+
+
+def test_too_many_pixels_refused_before_decoding(make_client):
+    client = make_client(max_pixels=1_000_000)
+    big = png_bytes(np.zeros((1000, 1500, 3), np.uint8))  # 1.5 megapixels in a few kilobytes
+    response = post_photo(client, big, name="big.png", content_type="image/png")
+    assert response.status_code == 413
+    assert "1.5 megapixels" in response.json()["detail"]
+
+
+@pytest.mark.parametrize(
+    ("data", "looks_like"),
+    [
+        (b"%PDF-1.7\n%\xe2\xe3\xcf\xd3\n1 0 obj\n<<>>\nendobj\n", "PDF"),
+        (b"Hello, this is not a photo.\n", "text file"),
+        (b"GIF89a\x01\x00\x01\x00\x00\x00\x00;", "GIF"),
+        (b"\x00\x00\x00\x18ftypheic\x00\x00\x00\x00mif1heic", "HEIC"),
+    ],
+)
+def test_non_image_refused(make_client, data, looks_like):
+    response = post_photo(make_client(), data)  # named foot.jpg, declared image/jpeg: neither is trusted
+    assert response.status_code == 415
+    detail = response.json()["detail"]
+    assert "JPEG, PNG, WebP or TIFF" in detail and looks_like in detail
+
+
+def test_photo_without_a_foot(make_client, blank_photo, demo_photo):
+    client = make_client()
+    response = post_photo(client, blank_photo, name="floor.png", content_type="image/png")
+    assert response.status_code == 422
+    assert response.json()["detail"].startswith("no foot found in the photo")
+    assert post_photo(client, demo_photo).status_code == 200  # still serving
+
+
+def test_bad_fields_and_side_files(make_client, demo_photo):
+    client = make_client()
+    photo = ("foot.jpg", demo_photo, "image/jpeg")
+    missing = client.post(MEASURE, data={"side": "left"})
+    assert missing.status_code == 422 and missing.json()["detail"] == "photo: Field required"
+    side = client.post(MEASURE, files={"photo": photo}, data={"side": "middle"})
+    assert side.status_code == 422 and side.json()["detail"].startswith("side: Input should be")
+    depth = client.post(MEASURE, files={"photo": photo, "depth": ("d.png", b"not a depth map", "image/png")})
+    assert depth.status_code == 415 and "depth map" in depth.json()["detail"]
+    k = client.post(MEASURE, files={"photo": photo, "intrinsics": ("k.json", b"{fx: 1", "application/json")})
+    assert k.status_code == 400 and "not valid JSON" in k.json()["detail"]
+    nan = client.post(MEASURE, files={"photo": photo, "intrinsics": ("k.json", b'{"fx": NaN}', "application/json")})
+    assert nan.status_code == 400 and "NaN" in nan.json()["detail"]
+
+
+def test_pipeline_crash_is_500_and_server_keeps_serving(make_client, demo_photo, tmp_path):
+    calls = []
+
+    def crashing(image, out_dir, **options):
+        calls.append(1)
+        if len(calls) == 1:
+            raise RuntimeError("bug in the pipeline")
+        return fake_measure(image, out_dir, **options)
+
+    client = make_client(crashing)
+    response = post_photo(client, demo_photo)
+    assert response.status_code == 500
+    assert "internal error" in response.json()["detail"] and "bug" not in response.json()["detail"]
+    assert post_photo(client, demo_photo).status_code == 200
+    assert upload_dirs(tmp_path) == []
+
+
+# ----------------------------------------------------------------------------------------------------------
+# Capacity and time limits
+# ----------------------------------------------------------------------------------------------------------
+
+
+def test_queue_then_503_beyond_capacity(make_client, demo_photo):
+    gate = threading.Event()
+
+    def blocking(image, out_dir, **options):
+        gate.wait(10.0)
+        return fake_measure(image, out_dir, **options)
+
+    client = make_client(blocking, workers=1, queue=1)
+    answers = {}
+
+    def send(key: str) -> None:
+        answers[key] = post_photo(client, demo_photo)
+
+    threads = [threading.Thread(target=send, args=(k,)) for k in "ab"]
+    threads[0].start()
+    wait_until(lambda: client.get("/api/health").json()["running"] == 1)
+    threads[1].start()
+    wait_until(lambda: client.get("/api/health").json()["queued"] == 1)
+    refused = post_photo(client, demo_photo)
+    assert refused.status_code == 503
+    assert "busy" in refused.json()["detail"] and int(refused.headers["Retry-After"]) > 0
+    gate.set()
+    for t in threads:
+        t.join(20.0)
+    assert [answers[k].status_code for k in "ab"] == [200, 200]  # the queued one was not lost
+    assert client.get("/api/health").json()["running"] == 0
+
+
+def test_time_limit_in_thread_isolation(make_client, demo_photo, tmp_path):
+    client = make_client(FakeMeasure(delay_s=1.0), time_limit_s=0.2)
+    start = time.monotonic()
+    response = post_photo(client, demo_photo)
+    assert response.status_code == 504 and "0.2 s" in response.json()["detail"]
+    assert time.monotonic() - start < 1.0
+    # the thread cannot be stopped: it keeps its worker until it ends, then everything is cleaned up
+    wait_until(lambda: client.get("/api/health").json()["running"] == 0)
+    assert upload_dirs(tmp_path) == []
+
+
+def test_process_isolation_measures_and_kills_at_the_time_limit(make_client, demo_photo, blank_photo, tmp_path):
+    # a measure function without torch and no preloading: the forkserver starts in a moment
+    client = make_client(StubMeasure(), isolation="process", time_limit_s=60.0, preload=())
+    assert post_photo(client, demo_photo).status_code == 200
+    refused = post_photo(client, blank_photo, name="x.png", content_type="image/png")
+    assert refused.status_code == 422 and refused.json()["detail"].startswith("no foot")
+
+    slow = make_client(StubMeasure(delay_s=60.0), isolation="process", time_limit_s=1.0, preload=())
+    start = time.monotonic()
+    response = post_photo(slow, demo_photo)
+    assert response.status_code == 504
+    assert time.monotonic() - start < 8.0
+    assert multiprocessing.active_children() == []  # the job was killed, not left running
+    assert slow.get("/api/health").json()["running"] == 0
+    assert upload_dirs(tmp_path) == []
+
+
+# ----------------------------------------------------------------------------------------------------------
+# Paths, result store, documents
+# ----------------------------------------------------------------------------------------------------------
+
+
+def test_client_paths_never_reach_the_disk(make_client, demo_photo, tmp_path):
+    client = make_client()
+    response = post_photo(client, demo_photo, name="../../../../tmp/evil.jpg")
+    assert response.status_code == 200
+    assert not list(tmp_path.parent.rglob("evil*"))
+    rid = response.headers["X-Result-Id"]
+    for url in (
+        f"/api/results/{rid}/..%2F..%2Fetc%2Fpasswd",
+        f"/api/results/{rid}/other.obj",
+        "/api/results/not-a-result-id/mesh.obj",
+        "/api/results/AAAAAAAAAAAAAAAAAAAAAA",
+    ):
+        assert client.get(url).status_code == 404, url
+
+
+def test_results_expire(make_client, demo_photo, tmp_path):
+    client = make_client(result_ttl_s=0.3)
+    rid = post_photo(client, demo_photo).headers["X-Result-Id"]
+    assert client.get(f"/api/results/{rid}").status_code == 200
+    time.sleep(0.4)
+    gone = client.get(f"/api/results/{rid}/mesh.obj")
+    assert gone.status_code == 404 and "kept for" in gone.json()["detail"]
+    assert not list(tmp_path.glob(f"footmesh-results-*/{rid}"))
+
+
+def test_temporary_folders_removed_at_shutdown(demo_photo, tmp_path):
+    from fastapi.testclient import TestClient
+
+    from footmesh.web.app import create_app
+    from footmesh.web.settings import WebSettings
+
+    with TestClient(create_app(FakeMeasure(), WebSettings(isolation="thread", work_dir=tmp_path))) as client:
+        assert post_photo(client, demo_photo).status_code == 200
+        assert list(tmp_path.glob("footmesh-results-*/*"))
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_page_openapi_and_docs_are_served_locally(make_client):
+    client = make_client()
+    page = client.get("/")
+    assert page.status_code == 200
+    html = page.text
+    for field in ("photo", "depth", "depth_unit", "intrinsics"):
+        assert f'<label for="{field}"' in html and f'id="{field}"' in html
+    assert "script-src 'self' 'sha256-" in page.headers["content-security-policy"]
+    assert "https://" not in html  # nothing from a CDN
+    spec = client.get("/openapi.json").json()
+    assert "multipart/form-data" in spec["paths"][MEASURE]["post"]["requestBody"]["content"]
+    docs = client.get("/docs").text
+    assert "/static/vendor/swagger-ui/swagger-ui-bundle.js" in docs
+    for asset in (
+        "/static/vendor/swagger-ui/swagger-ui-bundle.js",
+        "/static/vendor/three/build/three.module.min.js",
+        "/static/vendor/three/build/three.core.min.js",
+        "/static/vendor/three/examples/jsm/controls/OrbitControls.js",
+        "/static/vendor/three/examples/jsm/loaders/GLTFLoader.js",
+        "/static/app.js",
+        "/static/viewer.js",
+        "/static/guide.svg",
+    ):
+        assert client.get(asset).status_code == 200, asset
+    health = client.get("/api/health").json()
+    assert health["status"] == "ok" and health["pipeline"] == "custom"
+
+
+def test_default_pipeline_missing_is_a_clear_503(make_client, demo_photo):
+    import importlib.util
+
+    if importlib.util.find_spec("footmesh.pipeline") is not None:
+        pytest.skip("footmesh.pipeline exists: test_web_real_pipeline.py covers the default pipeline")
+    from footmesh.web.jobs import default_measure
+
+    client = make_client(default_measure)
+    response = post_photo(client, demo_photo)
+    assert response.status_code == 503
+    assert "footmesh.pipeline" in response.json()["detail"]

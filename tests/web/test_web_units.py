@@ -1,0 +1,187 @@
+"""Pieces of the web app on their own: content checks of uploads, the result store, settings, the serve command."""
+
+from __future__ import annotations
+
+import argparse
+import io
+import json
+import struct
+import time
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from footmesh.web import uploads
+from footmesh.web.settings import WebSettings
+from footmesh.web.store import ResultStore
+
+
+def write(path, data: bytes):
+    path.write_bytes(data)
+    return path
+
+
+def image_bytes(fmt: str, size=(40, 30), mode="RGB") -> bytes:
+    buffer = io.BytesIO()
+    Image.new(mode, size, 90).save(buffer, format=fmt)
+    return buffer.getvalue()
+
+
+@pytest.mark.parametrize(("fmt", "suffix"), [("JPEG", ".jpg"), ("PNG", ".png"), ("WEBP", ".webp"), ("TIFF", ".tiff")])
+def test_photo_formats_get_their_own_suffix(tmp_path, fmt, suffix):
+    checked = uploads.check_photo(write(tmp_path / "photo.upload", image_bytes(fmt)), max_pixels=10_000)
+    assert (checked.kind, checked.path.suffix, checked.width, checked.height) == (fmt, suffix, 40, 30)
+    assert checked.path.parent == tmp_path and checked.path.exists()
+
+
+def test_photo_refusals(tmp_path):
+    with pytest.raises(uploads.UploadError, match="GIF") as gif:
+        uploads.check_photo(write(tmp_path / "a.upload", image_bytes("GIF")), 10_000)
+    assert gif.value.status == 415
+    with pytest.raises(uploads.UploadError, match="megapixels") as big:
+        uploads.check_photo(write(tmp_path / "b.upload", image_bytes("PNG", (200, 100))), 10_000)
+    assert big.value.status == 413
+    png = image_bytes("PNG", (200, 100))
+    with pytest.raises(uploads.UploadError, match="corrupt") as cut:
+        uploads.check_photo(write(tmp_path / "c.upload", png[: len(png) - 30]), 100_000)
+    assert cut.value.status == 400
+
+
+def test_save_upload_limits(tmp_path):
+    assert uploads.save_upload(io.BytesIO(b"x" * 100), tmp_path / "ok", 100, "photo").read_bytes() == b"x" * 100
+    with pytest.raises(uploads.UploadError, match="larger than 1 KB") as big:
+        uploads.save_upload(io.BytesIO(b"x" * 2000), tmp_path / "big", 1024, "photo")
+    assert big.value.status == 413
+    with pytest.raises(uploads.UploadError, match="empty") as empty:
+        uploads.save_upload(io.BytesIO(b""), tmp_path / "empty", 1024, "photo")
+    assert empty.value.status == 400
+
+
+def test_depth_npy(tmp_path):
+    def npy(array) -> bytes:
+        buffer = io.BytesIO()
+        np.save(buffer, array)
+        return buffer.getvalue()
+
+    ok = uploads.check_depth(write(tmp_path / "d1.upload", npy(np.ones((30, 40), np.float32))), 10_000)
+    assert (ok.kind, ok.path.suffix, ok.width, ok.height) == ("NPY", ".npy", 40, 30)
+    assert uploads.check_depth(write(tmp_path / "d2.upload", npy(np.ones((30, 40, 1), np.uint16))), 10_000).width == 40
+    for array, message in [
+        (np.array([{"a": 1}], dtype=object), "numbers"),
+        (np.ones((2, 30, 40)), "2D"),
+        (np.ones((300, 400)), "megapixels"),
+    ]:
+        with pytest.raises(uploads.UploadError, match=message):
+            uploads.check_depth(write(tmp_path / "bad.upload", npy(array)), 10_000)
+    truncated = npy(np.ones((30, 40), np.float32))[:-100]
+    with pytest.raises(uploads.UploadError, match="truncated"):
+        uploads.check_depth(write(tmp_path / "cut.upload", truncated), 10_000)
+
+
+def test_depth_png_and_exr(tmp_path):
+    png = io.BytesIO()
+    Image.fromarray(np.full((30, 40), 700, np.uint16)).save(png, format="PNG")
+    checked = uploads.check_depth(write(tmp_path / "d.upload", png.getvalue()), 10_000)
+    assert (checked.kind, checked.width, checked.height) == ("PNG", 40, 30)
+
+    def exr(window: tuple[int, int, int, int] | None) -> bytes:
+        header = uploads.EXR_MAGIC + struct.pack("<i", 2)
+        header += b"compression\0compression\0" + struct.pack("<i", 1) + b"\0"
+        if window is not None:
+            header += b"dataWindow\0box2i\0" + struct.pack("<i4i", 16, *window)
+        return header + b"\0" + bytes(64)
+
+    checked = uploads.check_depth(write(tmp_path / "e.upload", exr((0, 0, 39, 29))), 10_000)
+    assert (checked.kind, checked.path.suffix, checked.width, checked.height) == ("EXR", ".exr", 40, 30)
+    with pytest.raises(uploads.UploadError, match="megapixels"):
+        uploads.check_depth(write(tmp_path / "f.upload", exr((0, 0, 9999, 9999))), 10_000)
+    with pytest.raises(uploads.UploadError, match="dataWindow"):
+        uploads.check_depth(write(tmp_path / "g.upload", exr(None)), 10_000)
+
+
+def test_intrinsics(tmp_path):
+    k = {"fx": 500.0, "fy": 500.0, "cx": 320.0, "cy": 240.0}
+    checked = uploads.check_intrinsics(write(tmp_path / "k.upload", json.dumps(k).encode()))
+    assert checked.path.name == "k.json" and json.loads(checked.path.read_text()) == k
+    for data, message in [(b"[1, 2]", "object"), (b'{"fx": Infinity}', "Infinity"), (b"\xff\xfe", "not JSON")]:
+        with pytest.raises(uploads.UploadError, match=message):
+            uploads.check_intrinsics(write(tmp_path / "bad.upload", data))
+
+
+def test_describe():
+    assert uploads.describe(b"%PDF-1.4") == "a PDF document"
+    assert "HEIC" in uploads.describe(b"\0\0\0\x18ftypheic")
+    assert uploads.describe(b"<html><body>") == "a text file (HTML, XML, SVG or JSON)"
+    assert uploads.describe(bytes(range(128, 160))) == "an unknown binary format"
+
+
+# ----------------------------------------------------------------------------------------------------------
+
+
+def make_output(folder, names=("mesh.obj", "result.json")):
+    folder.mkdir(exist_ok=True)
+    for name in names:
+        (folder / name).write_text(name)
+    return folder
+
+
+def test_store_add_get_and_refuse_unsafe_names(tmp_path):
+    store = ResultStore(tmp_path)
+    out = make_output(tmp_path / "out")
+    (tmp_path / "secret.txt").write_text("secret")
+    (out / "link.obj").symlink_to(tmp_path / "secret.txt")
+    result = {"files": {"mesh_obj": "mesh.obj", "result_json": "result.json", "up": "../secret.txt", "l": "link.obj"}}
+    rid = store.add(result, out)
+    assert store.get(rid).result == result
+    assert store.file(rid, "mesh.obj").read_text() == "mesh.obj"
+    assert store.file(rid, "mesh.obj").parent.parent == store.root
+    for name in ("../secret.txt", "link.obj", "missing.glb"):
+        assert store.file(rid, name) is None
+    assert store.get("../../etc") is None and store.get(rid[:-1]) is None
+    store.close()
+    assert not store.root.exists()
+
+
+def test_store_writes_result_json_when_not_listed(tmp_path):
+    store = ResultStore(tmp_path)
+    rid = store.add({"files": {}, "side": "left"}, make_output(tmp_path / "out", ()))
+    assert json.loads(store.file(rid, "result.json").read_text()) == {"files": {}, "side": "left"}
+
+
+def test_store_expiry_and_capacity(tmp_path):
+    store = ResultStore(tmp_path, ttl_s=0.2, max_entries=2)
+    rids = [store.add({"files": {}}, make_output(tmp_path / f"out{i}", ())) for i in range(3)]
+    assert store.get(rids[0]) is None and len(store) == 2  # the oldest went first
+    assert not (store.root / rids[0]).exists()
+    time.sleep(0.25)
+    assert store.get(rids[2]) is None and store.sweep() >= 0 and len(store) == 0
+    assert list(store.root.iterdir()) == []
+
+
+# ----------------------------------------------------------------------------------------------------------
+
+
+def test_settings_are_checked():
+    with pytest.raises(ValueError, match="workers"):
+        WebSettings(workers=0)
+    with pytest.raises(ValueError, match="isolation"):
+        WebSettings(isolation="none")
+    with pytest.raises(ValueError, match="queue"):
+        WebSettings(queue=-1)
+
+
+def test_serve_command_arguments():
+    from footmesh.cli import UserError
+    from footmesh.web.cli import add_serve_command, run_serve, settings_from_args
+
+    parser = argparse.ArgumentParser()
+    add_serve_command(parser.add_subparsers(dest="command"))
+    args = parser.parse_args(["serve", "--port", "8123", "--workers", "2", "--max-upload-mb", "5", "--time-limit", "9"])
+    settings = settings_from_args(args)
+    assert (args.host, args.port) == ("127.0.0.1", 8123)
+    assert (settings.workers, settings.max_upload_bytes, settings.time_limit_s) == (2, 5 * 2**20, 9.0)
+    with pytest.raises(UserError, match="port"):
+        run_serve(parser.parse_args(["serve", "--port", "0"]))
+    with pytest.raises(ValueError, match="workers"):
+        run_serve(parser.parse_args(["serve", "--workers", "0"]))
