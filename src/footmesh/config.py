@@ -93,6 +93,21 @@ class TrainConfig:
     init_from: str | None = None
     """Weights to start from (e.g. the RGB-D network for the RGB one); matching layers are copied."""
 
+    def __post_init__(self) -> None:
+        for name in ("steps", "batch_size", "val_every"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"{name} must be at least 1, got {getattr(self, name)}")
+        if self.warmup_steps < 0:
+            raise ValueError(f"warmup_steps must be at least 0, got {self.warmup_steps}")
+        if self.lr <= 0 or self.weight_decay < 0:
+            raise ValueError(f"lr must be > 0 and weight_decay >= 0, got {self.lr} and {self.weight_decay}")
+        if not 0 <= self.val_fraction < 1:
+            raise ValueError(f"val_fraction must be in [0, 1), got {self.val_fraction}")
+        if self.checkpoint_every_s <= 0 or (self.max_minutes is not None and self.max_minutes <= 0):
+            raise ValueError("checkpoint_every_s and max_minutes must be positive")
+        if self.threads is not None and self.threads < 1:
+            raise ValueError(f"threads must be at least 1, got {self.threads}")
+
 
 @dataclass(frozen=True)
 class CuesLossConfig:
@@ -103,6 +118,11 @@ class CuesLossConfig:
     joints_px: float = 0.05
     """Weight of the L1 joint distance in input pixels (soft-argmax head)."""
     visibility: float = 0.1
+
+    def __post_init__(self) -> None:
+        for name in ("silhouette", "heatmap", "joints_px", "visibility"):
+            if getattr(self, name) < 0:
+                raise ValueError(f"loss weight {name} must be at least 0, got {getattr(self, name)}")
 
 
 @dataclass(frozen=True)
@@ -135,10 +155,39 @@ def _from_dict(cls, data: dict[str, Any], where: str):
         current = getattr(default, name)
         if hasattr(current, "__dataclass_fields__"):
             value = _from_dict(type(current), value, f"{where}.{name}")
-        elif isinstance(current, tuple):
-            value = tuple(value)
+        else:
+            value = _check_type(value, current, cls, name, f"{where}.{name}")
         values[name] = value
     return replace(default, **values)
+
+
+def _check_type(value: Any, current: Any, cls, name: str, where: str) -> Any:
+    """``value`` for a field whose default is ``current``, as the field's type; ValueError naming it otherwise."""
+    hint = cls.__dataclass_fields__[name].type
+    optional = current is None or "None" in str(hint)
+    if value is None and optional:
+        return None
+    if isinstance(current, tuple) or "tuple" in str(hint):
+        if not isinstance(value, (list, tuple)) or not all(
+            isinstance(v, (int, float)) and not isinstance(v, bool) for v in value
+        ):
+            raise ValueError(f"{where} must be a list of numbers, got {value!r}")
+        return tuple(value)
+    if "bool" in str(hint):
+        if not isinstance(value, bool):
+            raise ValueError(f"{where} must be true or false, got {value!r}")
+        return value
+    if "int" in str(hint) and "float" not in str(hint):
+        if not isinstance(value, int) or isinstance(value, bool):
+            raise ValueError(f"{where} must be an integer, got {value!r}")
+        return value
+    if "float" in str(hint):
+        if not isinstance(value, (int, float)) or isinstance(value, bool):
+            raise ValueError(f"{where} must be a number, got {value!r}")
+        return float(value)
+    if "str" in str(hint) and not isinstance(value, str):
+        raise ValueError(f"{where} must be a string, got {value!r}")
+    return value
 
 
 def load_config(path: str | os.PathLike | None, **overrides: Any) -> CuesTrainingConfig:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import pickle
 from dataclasses import asdict
 from functools import lru_cache
 from importlib import resources
@@ -38,6 +39,8 @@ def _read(path: str | os.PathLike) -> dict[str, Any]:
         data = torch.load(path, map_location="cpu", weights_only=True)
     except FileNotFoundError:
         raise FileNotFoundError(f"weights file not found: {path}") from None
+    except (pickle.UnpicklingError, RuntimeError, KeyError, EOFError, ValueError) as exc:
+        raise ValueError(f"{path} is not a footmesh 2D-cues weights file ({type(exc).__name__})") from None
     if not isinstance(data, dict) or data.get("format") != FORMAT:
         raise ValueError(f"{path} is not a footmesh 2D-cues weights file")
     return data
@@ -68,7 +71,8 @@ def _cached_network(path: str) -> tuple[nn.Module, CuesNetConfig, dict[str, Any]
 
 def network_for(input_kind: str, path: str | os.PathLike | None = None) -> tuple[nn.Module, CuesNetConfig]:
     """The shipped network for ``input_kind`` (or the one at ``path``), loaded once per process."""
-    model, config, _ = _cached_network(str(path or packaged_weights(input_kind)))
+    path = path or packaged_weights(input_kind)
+    model, config, _ = _cached_network(str(path))
     if config.input != input_kind:
         raise ValueError(f"{path} holds a network for {config.input!r} input, not {input_kind!r}")
     return model, config

@@ -24,6 +24,8 @@ log = logging.getLogger("footmesh.train")
 EVAL_SIZE = 224
 """Image side the thesis reports joint errors in (Tables 4.2, 4.3)."""
 WEIGHTS = "weights.pt"
+FIRST_CONV = "stem1.0.weight"
+"""The convolution that sees the input channels (adapted between input kinds)."""
 
 
 def cues_loss(
@@ -117,7 +119,12 @@ def copy_matching(model: nn.Module, state: dict[str, torch.Tensor]) -> int:
         if value.shape == target.shape:
             own[name] = value.to(target.dtype)
             copied += 1
-        elif value.ndim == 4 and value.shape[0] == target.shape[0] and value.shape[2:] == target.shape[2:]:
+        elif (
+            name == FIRST_CONV
+            and value.shape[0] == target.shape[0]
+            and value.shape[1] > target.shape[1]
+            and value.shape[2:] == target.shape[2:]
+        ):
             cin = target.shape[1]
             # RGB-D -> RGB keeps the first 3 input channels, -> depth the last one
             own[name] = (value[:, :cin] if cin == 3 else value[:, -cin:]).to(target.dtype)

@@ -76,7 +76,8 @@ def load_arrays(folder: str | os.PathLike, size: int, progress: bool = True) -> 
     folder = Path(folder)
     cache = folder / f"cues-cache-{size}"
     dataset = SynthDataset(folder, keys=["rgb", "depth", "silhouette", "joints2d", "joints_visible", "view_id"])
-    stamp = {"samples": len(dataset), "size": size, "chunks": [f.name for f in dataset.files]}
+    chunks = [[f.name, f.stat().st_size, f.stat().st_mtime_ns] for f in dataset.files]
+    stamp = {"samples": len(dataset), "size": size, "chunks": chunks}
     if not (cache / "stamp.json").is_file() or json.loads((cache / "stamp.json").read_text()) != stamp:
         _build_cache(dataset, cache, size, stamp, progress)
     arrays = {k: np.load(cache / f"{k}.npy", mmap_mode="r") for k in CACHE_KEYS}

@@ -131,7 +131,7 @@ def run_training(
     ckpt_path = out / CHECKPOINT
     if ckpt_path.is_file():
         ckpt = torch.load(ckpt_path, map_location="cpu", weights_only=False)
-        if json.loads(json.dumps(ckpt["config"])) != json.loads(json.dumps(full_config)):
+        if _comparable(ckpt["config"]) != _comparable(full_config):
             raise ValueError(
                 f"{ckpt_path} was written with another configuration; use another --out or the same settings"
             )
@@ -186,7 +186,7 @@ def run_training(
             terms = {**terms, "lr": optimizer.param_groups[0]["lr"], "step_s": time.time() - t0}
             logger.write(step, elapsed, terms)
             bar.update(1)
-            bar.set_postfix(loss=f"{float(loss):.3f}")
+            bar.set_postfix(loss=f"{loss.item():.3f}")
             last = step == config.steps
             if step % config.val_every == 0 or last:
                 if ctx.is_main:
@@ -195,7 +195,7 @@ def run_training(
                     model.train()
                     logger.write(step, elapsed, metrics)
                     bar.write(f"step {step}: " + ", ".join(f"{k} {v:.4g}" for k, v in metrics.items()))
-            out_of_time = time.time() >= budget_end or _any(stop.requested, ctx)
+            out_of_time = _any(time.time() >= budget_end or stop.requested, ctx)
             if last or out_of_time or time.time() - last_save >= config.checkpoint_every_s:
                 save()
                 last_save = time.time()
@@ -208,6 +208,19 @@ def run_training(
     if ctx.world > 1:
         dist.barrier()
     return TrainResult(step, step >= config.steps, elapsed, metrics)
+
+
+RUN_CONTROL = ("max_minutes", "threads", "checkpoint_every_s", "val_every")
+"""Training fields that may change between a run and its resumption (they do not change the model)."""
+
+
+def _comparable(config: dict[str, Any]) -> dict[str, Any]:
+    data = json.loads(json.dumps(config))
+    for section in data.values():
+        if isinstance(section, dict):
+            for name in RUN_CONTROL:
+                section.pop(name, None)
+    return data
 
 
 def _any(flag: bool, ctx: Distributed) -> bool:
