@@ -293,6 +293,22 @@ def _add_train_commands(sub: argparse._SubParsersAction) -> None:
     cues.add_argument("--threads", type=int, help="torch threads per process")
     cues.add_argument("--no-progress", action="store_true", help="no progress bar")
     cues.set_defaults(func=_run_train_cues)
+    recon = train_sub.add_parser("recon", help="train the image -> mesh network (or the EdgeConv baseline)")
+    recon.add_argument("--input", choices=("rgb", "rgbd", "depth"), required=True, help="input channels")
+    recon.add_argument("--data", required=True, help="synthetic dataset folder with vertices (footmesh synth)")
+    recon.add_argument(
+        "--out", help="run folder: checkpoint, logs, weights.pt, MODEL_CARD.md (default runs/recon-INPUT-LOSS)"
+    )
+    recon.add_argument("--config", help="JSON configuration (footmesh.train.recon); command-line flags override it")
+    recon.add_argument("--loss", choices=("thesis", "structure"), help="mesh loss (default thesis)")
+    recon.add_argument("--kind", choices=("ism", "edgeconv"), help="mesh decoder (default ism) or edgeconv baseline")
+    recon.add_argument("--steps", type=int, help="training steps")
+    recon.add_argument("--batch-size", type=int, help="batch size per process")
+    recon.add_argument("--max-minutes", type=float, help="stop (resumable) after this many minutes")
+    recon.add_argument("--init-from", help="recon weights.pt to start from (e.g. the RGB-D network's for RGB)")
+    recon.add_argument("--threads", type=int, help="torch threads per process")
+    recon.add_argument("--no-progress", action="store_true", help="no progress bar")
+    recon.set_defaults(func=_run_train_recon)
 
 
 def _run_train_cues(args: argparse.Namespace) -> int:
@@ -331,6 +347,45 @@ def _run_train_cues(args: argparse.Namespace) -> int:
     return 0
 
 
+def _run_train_recon(args: argparse.Namespace) -> int:
+    from dataclasses import replace
+
+    from footmesh.recon.model import LOSSES
+    from footmesh.train.recon import load_recon_config, train_recon
+
+    config = load_recon_config(args.config)
+    kind = args.kind or config.model.kind
+    # a kind changed by the flag brings its own default loss (the EdgeConv baseline: the Chamfer distance)
+    loss = args.loss or (config.model.loss if kind == config.model.kind else LOSSES[kind][0])
+    model = replace(config.model, input=args.input, kind=kind, loss=loss)
+    train_overrides = {
+        "steps": args.steps,
+        "batch_size": args.batch_size,
+        "max_minutes": args.max_minutes,
+        "init_from": args.init_from,
+        "threads": args.threads,
+    }
+    for name in ("steps", "batch_size", "threads"):
+        value = train_overrides[name]
+        if value is not None and value < 1:
+            raise UserError(f"--{name.replace('_', '-')} must be at least 1, got {value}")
+    train = replace(config.train, **{k: v for k, v in train_overrides.items() if v is not None})
+    config = replace(config, model=model, train=train)
+    out = args.out or f"runs/recon-{args.input}-{kind if kind == 'edgeconv' else loss}"
+    result = train_recon(args.data, out, config, progress=not args.no_progress)
+    state = "finished" if result.finished else "stopped (rerun the same command to resume)"
+    metrics = ", ".join(f"{k} {v:.4g}" for k, v in result.metrics.items())
+    log.info(
+        "%s after %d steps in %.0f min; %s; weights: %s/weights.pt",
+        state,
+        result.steps_done,
+        result.seconds / 60,
+        metrics,
+        out,
+    )
+    return 0
+
+
 # --- footmesh eval ... ------------------------------------------------------------------------------------------
 
 
@@ -352,6 +407,15 @@ def _add_eval_commands(sub: argparse._SubParsersAction) -> None:
     meas.add_argument("--json", help="also write per-photo records to this JSON file")
     meas.add_argument("--no-progress", action="store_true", help="no progress bar")
     meas.set_defaults(func=_run_eval_measure)
+    recon = ev_sub.add_parser("recon", help="Tables 4.4, 4.5 (and 4.6 per viewpoint) of the reconstruction networks")
+    recon.add_argument("--input", choices=("rgb", "rgbd", "depth", "all"), default="all", help="network(s)")
+    recon.add_argument("--data", required=True, help="test folder (footmesh synth, another seed than training)")
+    recon.add_argument("--views-data", help="test folder made with --views thesis, for Table 4.6")
+    recon.add_argument("--weights", help="weights.pt to evaluate instead of the shipped ones (one --input)")
+    recon.add_argument("--edgeconv-weights", help="weights.pt of an EdgeConv baseline run, for Table 4.4")
+    recon.add_argument("--limit", type=int, help="evaluate only the first N samples of each folder")
+    recon.add_argument("--json", help="also write the numbers to this JSON file")
+    recon.set_defaults(func=_run_eval_recon)
 
 
 def _run_eval_cues(args: argparse.Namespace) -> int:
@@ -375,6 +439,19 @@ def _run_eval_measure(args: argparse.Namespace) -> int:
     if args.n < 1 or args.size < 128:
         raise UserError("--n must be at least 1 and --size at least 128")
     print(run_eval(modes, args.n, args.size, args.views, args.json, progress=not args.no_progress))
+    return 0
+
+
+def _run_eval_recon(args: argparse.Namespace) -> int:
+    from footmesh.eval.recon import INPUTS, run_eval
+
+    inputs = list(INPUTS) if args.input == "all" else [args.input]
+    if args.weights and len(inputs) != 1:
+        raise UserError("--weights needs a single --input (rgb, rgbd or depth)")
+    if args.limit is not None and args.limit < 1:
+        raise UserError(f"--limit must be at least 1, got {args.limit}")
+    weights = {inputs[0]: args.weights} if args.weights else None
+    print(run_eval(args.data, inputs, args.views_data, weights, args.json, args.edgeconv_weights, args.limit))
     return 0
 
 

@@ -1,0 +1,386 @@
+"""``footmesh eval recon``: thesis Tables 4.4 (vertex error), 4.5 (3D joints) and 4.6 (3D joints per viewpoint).
+
+The networks see each test image resized to their input side with the intrinsics resized alike, exactly as in
+training; their meshes (mm, camera frame) are compared with the synthetic ground truth:
+
+- **per-vertex error** (Table 4.4): mean Euclidean distance between each predicted vertex and the same vertex of
+  the true mesh, as predicted (*raw*, the thesis' measure), after moving the prediction's centroid onto the
+  true centroid (*centroid-aligned*: the shape and orientation alone), and after that plus the least-squares
+  scale about the centroid (*scale-aligned*: the shape up to size; the measure for RGB without a scale cue,
+  whose size is a guess). The least-squares factor itself (true / predicted size) is reported too;
+- **Chamfer error**: the mean of both directions' mean nearest-point distance (``recon.edgeconv``), the only
+  measure of the EdgeConv baseline's unordered points, given for the mesh networks too as the like-for-like
+  comparison;
+- **3D joints** (Tables 4.5, 4.6): ``joints_from_vertices`` of the predicted mesh against the true joints after
+  moving the midfoot onto the true one (``midfoot_aligned_error``; means over the 17 other joints), and for
+  scale-aligned reporting additionally scaled about the midfoot by the least-squares factor. The same
+  regressor applied to the *true* mesh gives the floor this reading of joints off a mesh has on posed feet.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from footmesh.eval import thesis
+from footmesh.model.skeleton import JOINT_NAMES
+from footmesh.recon.joints import joints_from_vertices, midfoot_aligned_error
+
+INPUTS = ("rgb", "rgbd", "depth")
+KEYS = ["rgb", "depth", "vertices", "joints3d", "K", "view_id"]
+
+
+@dataclass
+class ReconScores:
+    """Per-sample results of one network on one split (mm)."""
+
+    input: str
+    kind: str
+    vertex: list[float] = field(default_factory=list)
+    vertex_centred: list[float] = field(default_factory=list)
+    vertex_scaled: list[float] = field(default_factory=list)
+    scale: list[float] = field(default_factory=list)
+    chamfer: list[float] = field(default_factory=list)
+    joint: list[np.ndarray] = field(default_factory=list)  # (18,) midfoot-aligned, column 0 = 0
+    joint_scaled: list[np.ndarray] = field(default_factory=list)  # (18,) midfoot- and scale-aligned
+    joint_floor: list[np.ndarray] = field(default_factory=list)  # (18,) joints of the true mesh vs the truth
+    view_id: list[int] = field(default_factory=list)
+    seconds: float = 0.0
+    latency_ms: dict[str, float] = field(default_factory=dict)
+
+    @property
+    def samples(self) -> int:
+        return len(self.chamfer)
+
+    def summary(self) -> dict:
+        """Means over the samples (and per joint), as plain numbers for JSON."""
+        out = {
+            "input": self.input,
+            "kind": self.kind,
+            "samples": self.samples,
+            "chamfer_mm": _mean(self.chamfer),
+            "ms_per_image": 1000 * self.seconds / max(self.samples, 1),
+            "latency_ms_batch1": dict(self.latency_ms),
+        }
+        if self.kind == "edgeconv":
+            return out
+        joint, scaled, floor = np.array(self.joint), np.array(self.joint_scaled), np.array(self.joint_floor)
+        out.update(
+            {
+                "vertex_mm": _mean(self.vertex),
+                "vertex_mm_median": float(np.median(self.vertex)),
+                "vertex_mm_centroid_aligned": _mean(self.vertex_centred),
+                "vertex_mm_scale_aligned": _mean(self.vertex_scaled),
+                "scale_factor_mean": _mean(self.scale),
+                "scale_factor_sd": float(np.std(self.scale)),
+                "joint_mm": {name: float(joint[:, j].mean()) for j, name in enumerate(JOINT_NAMES)},
+                "joint_mm_mean": float(joint[:, 1:].mean()),
+                "joint_mm_scale_aligned": {name: float(scaled[:, j].mean()) for j, name in enumerate(JOINT_NAMES)},
+                "joint_mm_scale_aligned_mean": float(scaled[:, 1:].mean()),
+                "joint_mm_floor": {name: float(floor[:, j].mean()) for j, name in enumerate(JOINT_NAMES)},
+                "joint_mm_floor_mean": float(floor[:, 1:].mean()),
+            }
+        )
+        return out
+
+
+def _mean(values: list[float]) -> float:
+    return float(np.mean(values)) if len(values) else float("nan")
+
+
+# --- metrics ------------------------------------------------------------------------------------------------------
+
+
+def vertex_errors(pred: torch.Tensor, true: torch.Tensor) -> dict[str, torch.Tensor]:
+    """Per-sample mean per-vertex errors (B,) mm of meshes (B, V, 3): raw, centroid-aligned, scale-aligned, and
+    the least-squares scale factor (B,) that the scale-aligned error applies about the centroid."""
+    raw = (pred - true).norm(dim=-1).mean(1)
+    p = pred - pred.mean(1, keepdim=True)
+    t = true - true.mean(1, keepdim=True)
+    k = (p * t).sum((1, 2)) / (p * p).sum((1, 2)).clamp_min(1e-12)  # argmin_k sum |k p - t|^2
+    return {
+        "raw": raw,
+        "centred": (p - t).norm(dim=-1).mean(1),
+        "scaled": (k.view(-1, 1, 1) * p - t).norm(dim=-1).mean(1),
+        "scale": k,
+    }
+
+
+def scale_aligned_joint_error(pred: torch.Tensor, true: torch.Tensor) -> torch.Tensor:
+    """(B, 18) joint errors mm after moving the midfoot onto the truth's and the least-squares scale about it."""
+    p = pred - pred[:, :1]
+    t = true - true[:, :1]
+    k = (p * t).sum((1, 2)) / (p * p).sum((1, 2)).clamp_min(1e-12)
+    return (k.view(-1, 1, 1) * p - t).norm(dim=-1)
+
+
+def chamfer_mm(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+    """Symmetric Chamfer distance (B,) mm of clouds (B, N, 3) and (B, M, 3), as ``recon.edgeconv.chamfer_distance``
+    but with one distance matrix per pair (evaluation only: no gradient)."""
+    out = []
+    with torch.no_grad():
+        for ai, bi in zip(a, b, strict=True):
+            centre = bi.mean(0, keepdim=True)  # centred: the fast matrix-product distances pick the right pairs
+            d = torch.cdist((ai - centre)[None], (bi - centre)[None])[0]
+            # the chosen pairs' distances by subtraction: exact (0 for identical points), as the training loss
+            to_b = (ai - bi[d.argmin(1)]).norm(dim=-1).mean()
+            to_a = (bi - ai[d.argmin(0)]).norm(dim=-1).mean()
+            out.append(0.5 * (to_b + to_a))
+    return torch.stack(out)
+
+
+# --- evaluation ---------------------------------------------------------------------------------------------------
+
+
+def evaluate(
+    data: str | os.PathLike,
+    input_kind: str,
+    weights: str | os.PathLike | None = None,
+    batch: int = 32,
+    limit: int | None = None,
+) -> ReconScores:
+    """Scores of the ``input_kind`` network (shipped weights by default) on the samples of a test folder.
+
+    Args:
+        data: synthetic test folder (``footmesh synth``, another seed than training).
+        weights: a ``weights.pt`` of ``footmesh train recon`` (ISM or EdgeConv) instead of the shipped one.
+        limit: evaluate only the first ``limit`` samples.
+    """
+    from footmesh.cues.predict import resize_inputs
+    from footmesh.recon.model import predict_batch, resize_intrinsics
+    from footmesh.recon.weights import load_network, packaged_weights
+    from footmesh.synth.dataset import SynthDataset
+
+    path = weights or packaged_weights(input_kind)
+    model, config, _ = load_network(path)
+    if config.input != input_kind:
+        raise ValueError(f"{path} is a network for {config.input!r} input, not {input_kind!r}")
+    dataset = SynthDataset(data, keys=KEYS)
+    n = len(dataset) if limit is None else min(limit, len(dataset))
+    scores = ReconScores(input_kind, config.kind)
+    size = config.image_size
+    for start in range(0, n, batch):
+        samples = [dataset[i] for i in range(start, min(start + batch, n))]
+        rgbs, depths, ks = [], [], []
+        for s in samples:
+            r, d = resize_inputs(s["rgb"], s["depth"].astype(np.float32), size)
+            rgbs.append(r)
+            depths.append(d)
+            ks.append(resize_intrinsics(s["K"], s["rgb"].shape[0], size))
+        t0 = time.perf_counter()
+        out = predict_batch(
+            model,
+            np.stack(rgbs) if input_kind != "depth" else None,
+            np.stack(depths) if input_kind != "rgb" else None,
+            np.stack(ks),
+        )
+        scores.seconds += time.perf_counter() - t0
+        true_v = torch.from_numpy(np.stack([s["vertices"] for s in samples]).astype(np.float32))
+        true_j = torch.from_numpy(np.stack([s["joints3d"] for s in samples]).astype(np.float32))
+        pred = out.points if config.kind == "edgeconv" else out.vertices
+        scores.chamfer += chamfer_mm(pred, true_v).tolist()
+        scores.view_id += [int(s["view_id"]) for s in samples]
+        if config.kind == "edgeconv":
+            continue
+        errors = vertex_errors(pred, true_v)
+        scores.vertex += errors["raw"].tolist()
+        scores.vertex_centred += errors["centred"].tolist()
+        scores.vertex_scaled += errors["scaled"].tolist()
+        scores.scale += errors["scale"].tolist()
+        joints = joints_from_vertices(pred)
+        scores.joint += list(midfoot_aligned_error(joints, true_j).numpy())
+        scores.joint_scaled += list(scale_aligned_joint_error(joints, true_j).numpy())
+        scores.joint_floor += list(midfoot_aligned_error(joints_from_vertices(true_v), true_j).numpy())
+    scores.latency_ms = latency(model)
+    return scores
+
+
+@torch.inference_mode()
+def latency(model, runs: int = 20) -> dict[str, float]:
+    """Median CPU time (ms) of one forward pass at batch 1 of the whole network and of its decoder alone,
+    with the current torch threads."""
+    cfg = model.config
+    x = torch.zeros(1, cfg.in_channels - (2 if cfg.coord_channels else 0), cfg.image_size, cfg.image_size)
+    f = 0.75 * cfg.image_size
+    K = torch.tensor([[[f, 0.0, (cfg.image_size - 1) / 2], [0.0, f, (cfg.image_size - 1) / 2], [0, 0, 1]]])  # noqa: N806
+    ref = torch.full((1,), 500.0) if cfg.input != "rgb" else None
+    latent = torch.zeros(1, cfg.latent_features)
+    skips = [torch.zeros(1, c) for c in cfg.decoder.skip_in_channels]
+    decoder = model.decoder if model.decoder is not None else model.generator
+
+    def median(fn) -> float:
+        fn()
+        times = []
+        for _ in range(runs):
+            t0 = time.perf_counter()
+            fn()
+            times.append(time.perf_counter() - t0)
+        return 1000 * float(np.median(times))
+
+    return {
+        "network": median(lambda: model(x, K, ref)),
+        "decoder": median(lambda: decoder(latent, skips) if model.decoder is not None else decoder(latent)),
+    }
+
+
+def view_table(scores: ReconScores) -> dict[tuple[str, int], tuple[float, float, int]]:
+    """Mean and SD (mm) of all 17 non-midfoot joints' errors per thesis viewpoint: {(axis, deg): (mean, sd, n)}."""
+    from footmesh.synth.scene import NUM_THESIS_VIEWS, thesis_view
+
+    err = np.array(scores.joint)
+    views = np.array(scores.view_id)
+    out = {}
+    for v in range(NUM_THESIS_VIEWS):
+        rows = views == v
+        if not rows.any() or err.size == 0:
+            continue
+        _, _, axis, deg = thesis_view(v, "left")
+        e = err[rows][:, 1:]
+        out[(axis, deg)] = (float(e.mean()), float(e.std()), int(rows.sum()))
+    return out
+
+
+# --- tables -------------------------------------------------------------------------------------------------------
+
+
+def format_tables(
+    results: dict[str, ReconScores],
+    view_results: dict[str, ReconScores] | None = None,
+    edgeconv: ReconScores | None = None,
+) -> str:
+    """Markdown Tables 4.4, 4.5 (and 4.6 with the viewpoint split), ours beside the thesis'."""
+    kinds = [k for k in INPUTS if k in results]
+    summ = {k: results[k].summary() for k in kinds}
+    n = summ[kinds[0]]["samples"] if kinds else (edgeconv.samples if edgeconv else 0)
+    lines = [
+        f"Table 4.4: mean per-vertex error, mm ({n} test images). *raw*: as predicted, the thesis' measure; "
+        "*centroid-aligned*: the prediction moved onto the true centroid; *scale-aligned*: then also scaled about "
+        "the centroid by the least-squares factor (the measure for RGB, which has no depth to give the size); "
+        "*scale*: that factor, true / predicted size; Chamfer: mean nearest-point distance both ways.",
+        "",
+        "| method | raw ours | thesis | centroid-aligned | scale-aligned | scale | Chamfer |",
+        "|---|---:|---:|---:|---:|---:|---:|",
+    ]
+    if edgeconv is not None:
+        s = edgeconv.summary()
+        lines.append(
+            f"| EdgeConv ({edgeconv.input} image) | - | {thesis.VERTEX_MM['edgeconv']:.2f} | - | - | - | "
+            f"**{s['chamfer_mm']:.2f}** |"
+        )
+    else:
+        lines.append(f"| EdgeConv | not evaluated (--edgeconv-weights) | {thesis.VERTEX_MM['edgeconv']:.2f} | | | | |")
+    for k in kinds:
+        s = summ[k]
+        lines.append(
+            f"| ISM, {k} | **{s['vertex_mm']:.2f}** | {thesis.VERTEX_MM[k]:.2f} | {s['vertex_mm_centroid_aligned']:.2f}"
+            f" | {s['vertex_mm_scale_aligned']:.2f} | {s['scale_factor_mean']:.3f} | {s['chamfer_mm']:.2f} |"
+        )
+    if "rgb" in summ:
+        s = summ["rgb"]
+        lines += [
+            "",
+            f"RGB: {s['vertex_mm']:.2f} mm as predicted (raw); {s['vertex_mm_scale_aligned']:.2f} mm after aligning "
+            f"scale (scale-aligned); predicted sizes are off by a factor {s['scale_factor_mean']:.3f} +- "
+            f"{s['scale_factor_sd']:.3f} on average.",
+        ]
+    if kinds:
+        head = "| joint | " + " | ".join(f"{k} ours | {k} thesis" for k in kinds)
+        rule = "|---|" + "---:|---:|" * len(kinds)
+        if "rgb" in summ:
+            head += " | rgb scale-aligned"
+            rule += "---:|"
+        head += " | floor |"
+        rule += "---:|"
+        lines += [
+            "",
+            "Table 4.5: 3D joint error after aligning the midfoot, mm (joints from the mesh by the template's vertex "
+            "groups). *floor*: the same joints of the true mesh against the true joints.",
+            "",
+            head,
+            rule,
+        ]
+        first = summ[kinds[0]]
+        for j, name in enumerate(JOINT_NAMES):
+            cells = [f"{summ[k]['joint_mm'][name]:.2f} | {thesis.JOINT_MM[k][j]:.2f}" for k in kinds]
+            if "rgb" in summ:
+                cells.append(f"{summ['rgb']['joint_mm_scale_aligned'][name]:.2f}")
+            cells.append(f"{first['joint_mm_floor'][name]:.2f}")
+            lines.append(f"| {name} | " + " | ".join(cells) + " |")
+        cells = [f"**{summ[k]['joint_mm_mean']:.2f}** | {thesis.JOINT_MM_MEAN[k]:.2f}" for k in kinds]
+        if "rgb" in summ:
+            cells.append(f"{summ['rgb']['joint_mm_scale_aligned_mean']:.2f}")
+        cells.append(f"{first['joint_mm_floor_mean']:.2f}")
+        lines.append("| **mean (17 joints)** | " + " | ".join(cells) + " |")
+        lat = " | ".join(
+            f"{summ[k]['latency_ms_batch1']['network']:.1f} / {summ[k]['latency_ms_batch1']['decoder']:.1f}"
+            for k in kinds
+        )
+        lines += ["", f"CPU ms per image at batch 1, whole network / decoder ({', '.join(kinds)}): {lat}"]
+    if view_results:
+        vkinds = [k for k in INPUTS if k in view_results]
+        tables = {k: view_table(view_results[k]) for k in vkinds}
+        n_views = view_results[vkinds[0]].samples
+        lines += [
+            "",
+            f"Table 4.6: 3D joint error per thesis viewpoint, mean (SD) over all joints, mm ({n_views} images; "
+            "ours | thesis)",
+            "",
+            "| axis | deg | " + " | ".join(f"{k} ours | {k} thesis" for k in vkinds) + " |",
+            "|---|---:|" + "---:|---:|" * len(vkinds),
+        ]
+        for key in sorted(tables[vkinds[0]], key=lambda a: (a[0], a[1])):
+            cells = []
+            for k in vkinds:
+                m, sd, _ = tables[k][key]
+                tm, tsd = thesis.JOINT_MM_BY_VIEW[key][k]
+                cells.append(f"{m:.2f} ({sd:.2f}) | {tm:.2f} ({tsd:.2f})")
+            lines.append(f"| {key[0]} | {key[1]} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+def run_eval(
+    data: str | os.PathLike,
+    inputs: list[str],
+    views_data: str | os.PathLike | None = None,
+    weights: dict[str, str] | None = None,
+    json_out: str | os.PathLike | None = None,
+    edgeconv_weights: str | os.PathLike | None = None,
+    limit: int | None = None,
+) -> str:
+    """Evaluate the networks for ``inputs`` (and the EdgeConv baseline if given) on the first ``limit`` samples
+    (all by default) of each folder; return the tables and write the summaries as JSON."""
+    weights = weights or {}
+    results = {k: evaluate(data, k, weights.get(k), limit=limit) for k in inputs}
+    for k, s in results.items():
+        if s.kind != "ism":
+            raise ValueError(f"the {k} weights hold an EdgeConv network; give it with --edgeconv-weights")
+    view_results = None
+    if views_data:
+        view_results = {k: evaluate(views_data, k, weights.get(k), limit=limit) for k in inputs}
+    edgeconv = None
+    if edgeconv_weights:
+        from footmesh.recon.weights import read_weights
+
+        _, cfg, _ = read_weights(edgeconv_weights)
+        if cfg.kind != "edgeconv":
+            raise ValueError(f"{edgeconv_weights} holds a mesh network, not the EdgeConv baseline")
+        edgeconv = evaluate(data, cfg.input, edgeconv_weights, limit=limit)
+    text = format_tables(results, view_results, edgeconv)
+    if json_out:
+        from footmesh.report import write_json
+
+        payload: dict = {k: v.summary() for k, v in results.items()}
+        if edgeconv is not None:
+            payload["edgeconv"] = edgeconv.summary()
+        if view_results:
+            payload["by_view"] = {
+                k: {f"{a}{d}": list(v) for (a, d), v in view_table(s).items()} for k, s in view_results.items()
+            }
+        write_json(Path(json_out), json.loads(json.dumps(payload)))
+    return text

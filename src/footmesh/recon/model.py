@@ -1,0 +1,359 @@
+"""The image -> mesh network (thesis 3.3): a ResNet-style image encoder and the spiral decoder (or EdgeConv).
+
+    image (B, C, S, S) [+ 2 coordinate channels] --stem, 4 ResNet stages (strides 4, 8, 16, 32)-->
+    global average of every stage (B, w_k) --concat, linear, ReLU--> latent (B, decoder.in_features)
+    SpiralDecoder(latent, skips = stage averages, coarsest first) -> vertices in the *normalised camera frame*
+    ``to_camera`` (the intrinsics K, and the depth map's median when there is one) -> vertices, mm, camera frame
+
+Normalised camera frame (why): vertices are wanted in mm in the camera frame, but an image alone fixes only
+what a pinhole camera sees: pixel positions ``u - c`` and, with depth, depths. The synthetic cameras' horizontal
+field of view spans 60-75 deg, so the focal length varies by +-14 % and a foot's size in mm cannot be read off
+its size in pixels without K (10 % of a 260 mm foot is 26 mm, five times the 5 mm target). The decoder
+therefore predicts points ``(A, B, C)`` that the image determines, and K turns them into millimetres exactly:
+
+    C = Z / s,   A = (u - c0) C / f_ref,   B = (v - c0) C / f_ref        (c0: the image centre, f_ref = 0.75 S)
+    Z = s C,     X = s (f_ref A - (c_x - c0) C) / f_x,   Y = s (f_ref B - (c_y - c0) C) / f_y
+
+with ``s`` the scale the input leaves open: for depth inputs ``s = median depth / 500 mm`` (the depth channel is
+fed relative to its median, so scaling the whole scene scales the prediction: depth and size are metric), for
+RGB ``s = f_x / f_ref`` (then C is the depth of a camera with focal f_ref: the apparent size of a known object
+fixes it, so A4 sheets, cards and markers in the image can give the scale). A principal point off the image
+centre (a crop) is handled by the ``c - c0`` terms.
+
+Coordinate channels (CoordConv, Liu et al. 2018): global average pooling forgets where a feature was; two
+channels holding the pixel's normalised x and y let the pooled features carry the foot's position in the image,
+which the centroid needs (the synthetic cameras look at a point ~15 mm (SD) off the foot's centre).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, fields, is_dataclass, replace
+from typing import Any
+
+import numpy as np
+import torch
+from torch import nn
+
+from footmesh.config import INPUT_CHANNELS
+from footmesh.cues.inputs import DEPTH_CLIP, normalise_rgb
+from footmesh.cues.net import _stage, conv_bn_relu
+from footmesh.recon.decoder import DecoderConfig, DecoderOutput, SpiralDecoder
+from footmesh.recon.edgeconv import EdgeConvConfig, EdgeConvGenerator, PointCloudOutput
+from footmesh.recon.hierarchy import MeshHierarchy
+
+FOCAL_REF = 0.75
+"""Reference focal length f_ref of the normalised frame, as a fraction of the input side (about the middle of the
+synthetic 60-75 deg fields of view: 0.87 .. 0.65)."""
+DEPTH_REF_MM = 500.0
+"""Depth the median of a depth map is mapped to in the normalised frame (the decoder's prior centroid depth)."""
+DEPTH_GAIN = 5.0
+"""Relative depth ``d / median - 1`` is fed times this: 1 % of the median (5 mm at 500 mm) -> 0.05, the scale of
+the 2D-cues network's depth channel (100 mm -> 1) at the typical distance."""
+KINDS = ("ism", "edgeconv")
+LOSSES = {"ism": ("thesis", "structure"), "edgeconv": ("chamfer",)}
+"""The losses each kind can be trained with."""
+
+
+def _decoder_default() -> DecoderConfig:
+    # latent 256 x (252 vertices x 32) = 2.1 M parameters in the projection instead of the default decoder's 8.1 M;
+    # 32 channels at the coarse levels: 64 (the decoder's default) costs 50 % more time per training step
+    return DecoderConfig(in_features=256, channels=(16, 32, 32, 32, 32), skip_in_channels=(256, 128, 64, 32))
+
+
+def _edgeconv_default() -> EdgeConvConfig:
+    return EdgeConvConfig(in_features=256)
+
+
+@dataclass(frozen=True)
+class ReconConfig:
+    """Architecture and loss of ``ReconNet``; the defaults are sized for a 2-core CPU at 128 px."""
+
+    input: str = "rgbd"
+    """rgb, rgbd or depth."""
+    image_size: int = 128
+    widths: tuple[int, ...] = (32, 64, 128, 256)
+    """Channels of the encoder stages at strides 4, 8, 16, 32 (ResNet-18: 64, 128, 256, 512). The decoder costs
+    ~85 % of a training step on a CPU, so the encoder is wider than the 2D-cues network's at no measurable cost."""
+    blocks: tuple[int, ...] = (1, 1, 1, 1)
+    coord_channels: bool = True
+    """Append normalised x, y coordinate channels to the input (module docstring)."""
+    kind: str = "ism"
+    """``ism``: the spiral mesh decoder; ``edgeconv``: the EdgeConv point-cloud baseline."""
+    loss: str = "thesis"
+    """ISM: ``thesis`` (L1 + edge length + 0.1 normal) or ``structure`` (L1 + 0.1 normal + Laplacian); EdgeConv:
+    ``chamfer``."""
+    decoder: DecoderConfig = field(default_factory=_decoder_default)
+    """``in_features`` is the latent width; ``skip_in_channels`` must be ``widths`` reversed (or empty)."""
+    edgeconv: EdgeConvConfig = field(default_factory=_edgeconv_default)
+    """Used when ``kind == "edgeconv"``; ``in_features`` must equal ``decoder.in_features``."""
+
+    @property
+    def in_channels(self) -> int:
+        return INPUT_CHANNELS[self.input] + (2 if self.coord_channels else 0)
+
+    @property
+    def latent_features(self) -> int:
+        return self.decoder.in_features
+
+    def __post_init__(self) -> None:
+        if self.input not in INPUT_CHANNELS:
+            raise ValueError(f"input must be one of {sorted(INPUT_CHANNELS)}, got {self.input!r}")
+        if self.kind not in KINDS:
+            raise ValueError(f"kind must be one of {KINDS}, got {self.kind!r}")
+        if self.loss not in LOSSES[self.kind]:
+            raise ValueError(
+                f"a {self.kind} network is trained with loss {' or '.join(LOSSES[self.kind])}, not {self.loss!r}"
+            )
+        if len(self.widths) != 4 or len(self.blocks) != 4 or min(self.blocks) < 1 or min(self.widths) < 1:
+            raise ValueError("widths and blocks need one positive entry per encoder stage (4)")
+        if self.image_size % 32 or self.image_size < 64:
+            raise ValueError(f"image_size must be a multiple of 32 and at least 64, got {self.image_size}")
+        skips = tuple(reversed(self.widths))
+        if self.decoder.skip_in_channels not in ((), skips):
+            raise ValueError(
+                f"decoder.skip_in_channels must be the encoder widths reversed {list(skips)} (or empty for no "
+                f"skips), got {list(self.decoder.skip_in_channels)}"
+            )
+        if self.edgeconv.in_features != self.decoder.in_features:
+            raise ValueError(
+                f"edgeconv.in_features ({self.edgeconv.in_features}) must equal the latent width "
+                f"decoder.in_features ({self.decoder.in_features})"
+            )
+
+    @classmethod
+    def for_widths(cls, widths: tuple[int, ...], latent: int, **fields: object) -> ReconConfig:
+        """A configuration whose decoder and EdgeConv sizes follow the encoder ``widths`` and ``latent`` width."""
+        base = cls()
+        decoder = fields.pop("decoder", base.decoder)
+        edgeconv = fields.pop("edgeconv", base.edgeconv)
+        decoder = replace(decoder, in_features=latent, skip_in_channels=tuple(reversed(widths)))
+        return cls(widths=tuple(widths), decoder=decoder, edgeconv=replace(edgeconv, in_features=latent), **fields)
+
+
+def update_config(current, data: dict[str, Any], where: str = "config"):
+    """Dataclass ``current`` with the (partial, nested) values of ``data``; unknown keys and wrong types fail.
+
+    Nested dataclasses are updated from their *current* values (``config._from_dict`` starts from the nested
+    type's own defaults, which would drop e.g. this module's decoder sizes).
+    """
+    from footmesh.config import _check_type
+
+    if not isinstance(data, dict):
+        raise ValueError(f"{where} must be a JSON object, got {type(data).__name__}")
+    known = {f.name for f in fields(current)}
+    unknown = sorted(set(data) - known)
+    if unknown:
+        raise ValueError(f"unknown {where} keys {unknown}; known: {sorted(known)}")
+    values = {}
+    for name, value in data.items():
+        now = getattr(current, name)
+        if is_dataclass(now):
+            values[name] = update_config(now, value, f"{where}.{name}")
+        else:
+            values[name] = _check_type(value, now, type(current), name, f"{where}.{name}")
+    return replace(current, **values)
+
+
+# --- inputs and the normalised camera frame ---------------------------------------------------------------------
+
+
+def recon_input(
+    input_kind: str, rgb: torch.Tensor | None, depth_mm: torch.Tensor | None
+) -> tuple[torch.Tensor, torch.Tensor | None]:
+    """Network input (B, C, S, S) and each depth map's median valid depth (B,) mm (None for RGB).
+
+    Args:
+        input_kind: rgb (3 channels), rgbd (4) or depth (1).
+        rgb: (B, 3, S, S) in [0, 1] (standardised like the 2D-cues network's).
+        depth_mm: (B, 1, S, S) mm, 0 = missing; fed as ``DEPTH_GAIN * (d / median - 1)``, 0 where missing, so
+            that a scene scaled by k gives the same input (the median carries the scale).
+    Raises:
+        ValueError: a needed image is missing, or a depth map has no valid pixel.
+    """
+    if input_kind not in INPUT_CHANNELS:
+        raise ValueError(f"unknown input kind {input_kind!r}; one of {sorted(INPUT_CHANNELS)}")
+    parts, ref = [], None
+    if input_kind in ("rgb", "rgbd"):
+        if rgb is None or rgb.dim() != 4 or rgb.shape[1] != 3:
+            raise ValueError(f"{input_kind} input needs an RGB batch (B, 3, S, S)")
+        parts.append(normalise_rgb(rgb))
+    if input_kind in ("rgbd", "depth"):
+        if depth_mm is None or depth_mm.dim() != 4 or depth_mm.shape[1] != 1:
+            raise ValueError(f"{input_kind} input needs a depth batch (B, 1, S, S) in mm")
+        valid = depth_mm > 0
+        if not bool(valid.flatten(1).any(1).all()):
+            raise ValueError("a depth map has no valid (> 0) pixel: cannot tell the scale")
+        flat = torch.where(valid, depth_mm, torch.nan).flatten(1)
+        ref = torch.nanmedian(flat, dim=1).values  # (B,)
+        rel = (DEPTH_GAIN * (depth_mm / ref.view(-1, 1, 1, 1) - 1.0)).clamp(-DEPTH_CLIP, DEPTH_CLIP)
+        parts.append(torch.where(valid, rel, torch.zeros_like(rel)))
+    return torch.cat(parts, dim=1), ref
+
+
+def resize_intrinsics(K: np.ndarray | torch.Tensor, src: int, dst: int):
+    """Intrinsics (..., 3, 3) of a square ``src``-side image for its resize to ``dst`` x ``dst`` (pixel centres)."""
+    k = K.clone() if isinstance(K, torch.Tensor) else np.array(K, dtype=np.float64, copy=True)
+    r = dst / src
+    k[..., 0, 0] *= r
+    k[..., 1, 1] *= r
+    k[..., 0, 1] *= r
+    k[..., :2, 2] = (k[..., :2, 2] + 0.5) * r - 0.5
+    return k
+
+
+def frame_scale(input_kind: str, K: torch.Tensor, depth_ref_mm: torch.Tensor | None, size: int) -> torch.Tensor:
+    """The scale ``s`` (B,) of the normalised frame (module docstring): median depth / 500 mm, or f_x / f_ref."""
+    if input_kind in ("rgbd", "depth"):
+        if depth_ref_mm is None:
+            raise ValueError(f"{input_kind} input needs the depth maps' medians (recon_input's second output)")
+        return depth_ref_mm.to(K.dtype) / DEPTH_REF_MM
+    return K[:, 0, 0] / (FOCAL_REF * size)
+
+
+def to_camera(points: torch.Tensor, K: torch.Tensor, scale: torch.Tensor, size: int) -> torch.Tensor:
+    """Normalised-frame points (B, N, 3) -> camera frame (B, N, 3) mm, for intrinsics (B, 3, 3) of the input."""
+    c0, f_ref = (size - 1) / 2, FOCAL_REF * size
+    s = scale.view(-1, 1)
+    a, b, c = points.unbind(-1)
+    fx, fy = K[:, 0, 0].view(-1, 1), K[:, 1, 1].view(-1, 1)
+    cx, cy = K[:, 0, 2].view(-1, 1), K[:, 1, 2].view(-1, 1)
+    x = s * (f_ref * a - (cx - c0) * c) / fx
+    y = s * (f_ref * b - (cy - c0) * c) / fy
+    return torch.stack([x, y, s * c], dim=-1)
+
+
+def from_camera(points: torch.Tensor, K: torch.Tensor, scale: torch.Tensor, size: int) -> torch.Tensor:
+    """The inverse of ``to_camera``: camera-frame points (B, N, 3) mm -> normalised frame (B, N, 3)."""
+    c0, f_ref = (size - 1) / 2, FOCAL_REF * size
+    s = scale.view(-1, 1)
+    x, y, z = points.unbind(-1)
+    c = z / s
+    fx, fy = K[:, 0, 0].view(-1, 1), K[:, 1, 1].view(-1, 1)
+    cx, cy = K[:, 0, 2].view(-1, 1), K[:, 1, 2].view(-1, 1)
+    a = (x * fx / s + (cx - c0) * c) / f_ref
+    b = (y * fy / s + (cy - c0) * c) / f_ref
+    return torch.stack([a, b, c], dim=-1)
+
+
+# --- the network ------------------------------------------------------------------------------------------------
+
+
+class ImageEncoder(nn.Module):
+    """ResNet-style encoder of the 2D-cues network: ``(B, C, S, S)`` -> 4 stage outputs at strides 4..32.
+
+    Stem: two stride-2 3x3 convolutions (to stride 4); stages: ``footmesh.cues.net._stage`` (ResNet-18 blocks).
+    """
+
+    def __init__(self, in_channels: int, widths: tuple[int, ...], blocks: tuple[int, ...]) -> None:
+        super().__init__()
+        w = widths
+        half = max(w[0] // 2, 16)
+        self.stem = nn.Sequential(conv_bn_relu(in_channels, half, stride=2), conv_bn_relu(half, w[0], stride=2))
+        self.stages = nn.ModuleList(
+            [_stage(w[0], w[0], blocks[0], 1)] + [_stage(w[i - 1], w[i], blocks[i], 2) for i in range(1, 4)]
+        )
+
+    def forward(self, x: torch.Tensor) -> list[torch.Tensor]:
+        """(B, C, S, S) -> [(B, w_k, S / 2^(k+2), S / 2^(k+2)) for k = 0..3], finest first."""
+        x = self.stem(x)
+        out = []
+        for stage in self.stages:
+            x = stage(x)
+            out.append(x)
+        return out
+
+
+class ReconNet(nn.Module):
+    """Image (B, C, S, S), intrinsics and depth scale -> mesh (``DecoderOutput``) or points (``PointCloudOutput``).
+
+    Args:
+        config: ``ReconConfig``.
+        hierarchy: the template's mesh hierarchy (``template_hierarchy(cache=...)``); built when None (ISM only).
+    """
+
+    def __init__(self, config: ReconConfig | None = None, hierarchy: MeshHierarchy | None = None) -> None:
+        super().__init__()
+        cfg = config if config is not None else ReconConfig()
+        self.config = cfg
+        self.encoder = ImageEncoder(cfg.in_channels, cfg.widths, cfg.blocks)
+        self.latent = nn.Sequential(nn.Linear(sum(cfg.widths), cfg.latent_features), nn.ReLU(inplace=True))
+        self.decoder = SpiralDecoder(cfg.decoder, hierarchy) if cfg.kind == "ism" else None
+        self.generator = EdgeConvGenerator(cfg.edgeconv) if cfg.kind == "edgeconv" else None
+
+    @property
+    def faces(self) -> torch.Tensor:
+        """(F, 3) faces of the output mesh (left-foot winding; ISM only)."""
+        if self.decoder is None:
+            raise ValueError("the EdgeConv baseline outputs a point cloud, not a mesh")
+        return self.decoder.faces
+
+    def forward(
+        self,
+        x: torch.Tensor,
+        K: torch.Tensor,
+        depth_ref_mm: torch.Tensor | None = None,
+    ) -> DecoderOutput | PointCloudOutput:
+        """Reconstruct a batch.
+
+        Args:
+            x: (B, C, S, S) from ``recon_input`` (without the coordinate channels).
+            K: (B, 3, 3) intrinsics of the input images, px of the S x S input (``resize_intrinsics``).
+            depth_ref_mm: (B,) the depth maps' medians (``recon_input``); None for RGB.
+        Returns:
+            ``DecoderOutput`` (vertices (B, 4002, 3), centre, levels) or ``PointCloudOutput`` (points (B, N, 3),
+            centre), mm, camera frame.
+        """
+        cfg = self.config
+        want = INPUT_CHANNELS[cfg.input]
+        if x.dim() != 4 or x.shape[1] != want or x.shape[2:] != (cfg.image_size, cfg.image_size):
+            raise ValueError(
+                f"input must be (B, {want}, {cfg.image_size}, {cfg.image_size}) for {cfg.input}, got {tuple(x.shape)}"
+            )
+        if K.shape != (x.shape[0], 3, 3):
+            raise ValueError(f"K must be (B, 3, 3) = ({x.shape[0]}, 3, 3), got {tuple(K.shape)}")
+        scale = frame_scale(cfg.input, K.to(x.dtype), depth_ref_mm, cfg.image_size)
+        if cfg.coord_channels:
+            x = torch.cat([x, _coordinates(x)], dim=1)
+        pooled = [f.mean(dim=(2, 3)) for f in self.encoder(x)]  # (B, w_k), finest first
+        latent = self.latent(torch.cat(pooled, dim=1))
+        K = K.to(x.dtype)
+
+        def camera(p: torch.Tensor) -> torch.Tensor:
+            return to_camera(p, K, scale, cfg.image_size)
+
+        if self.generator is not None:
+            out = self.generator(latent)
+            return PointCloudOutput(camera(out.points), camera(out.centre[:, None])[:, 0])
+        skips = pooled[::-1] if cfg.decoder.skip_in_channels else None
+        out = self.decoder(latent, skips)
+        levels = tuple(camera(level) for level in out.levels)
+        return DecoderOutput(levels[0], camera(out.centre[:, None])[:, 0], levels)
+
+    def extra_repr(self) -> str:
+        n = sum(p.numel() for p in self.parameters())
+        return f"input={self.config.input}, kind={self.config.kind}, parameters={n}"
+
+
+def _coordinates(x: torch.Tensor) -> torch.Tensor:
+    """(B, 2, H, W): each pixel's normalised x and y in [-1, 1] (pixel centres)."""
+    b, _, h, w = x.shape
+    ys = (torch.arange(h, dtype=x.dtype, device=x.device) + 0.5) * (2 / h) - 1
+    xs = (torch.arange(w, dtype=x.dtype, device=x.device) + 0.5) * (2 / w) - 1
+    grid = torch.stack([xs.view(1, w).expand(h, w), ys.view(h, 1).expand(h, w)])
+    return grid.unsqueeze(0).expand(b, -1, -1, -1)
+
+
+@torch.no_grad()
+def predict_batch(
+    model: ReconNet,
+    rgb: np.ndarray | None,
+    depth_mm: np.ndarray | None,
+    K: np.ndarray,
+) -> DecoderOutput | PointCloudOutput:
+    """Reconstruct a batch already at the network's side: ``rgb`` (B, S, S, 3) uint8, ``depth_mm`` (B, S, S) mm,
+    ``K`` (B, 3, 3) px of that side; the images the input kind does not use may be None. Outputs in mm."""
+    cfg = model.config
+    t_rgb = None if rgb is None else torch.from_numpy(np.ascontiguousarray(rgb)).permute(0, 3, 1, 2).float() / 255
+    t_depth = None if depth_mm is None else torch.from_numpy(np.asarray(depth_mm, np.float32))[:, None]
+    x, ref = recon_input(cfg.input, t_rgb, t_depth)
+    return model(x, torch.as_tensor(np.asarray(K), dtype=torch.float32), ref)
