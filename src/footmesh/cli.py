@@ -438,7 +438,7 @@ def _run_eval_measure(args: argparse.Namespace) -> int:
         raise UserError(f"--modes must be a comma list of {', '.join(MODES)}; got {args.modes!r}")
     if args.n < 1 or args.size < 128:
         raise UserError("--n must be at least 1 and --size at least 128")
-    print(run_eval(modes, args.n, args.size, args.views, args.json, progress=not args.no_progress))
+    run_eval(modes, args.n, args.size, args.views, args.json, progress=not args.no_progress)
     return 0
 
 

@@ -240,11 +240,24 @@ def run_eval(
     """Evaluate the modes and return the tables (and write per-photo records as JSON)."""
     torch.set_num_threads(max(1, torch.get_num_threads()))
     results = {m: evaluate_mode(m, n, size, views, progress) for m in modes}
+    text = format_tables(results)
+    print(text, flush=True)  # before anything that could fail: the numbers took minutes
     if json_out:
         from dataclasses import asdict
 
         from footmesh.report import write_json
 
         payload = {m: {"summary": r.summary(), "records": [asdict(x) for x in r.records]} for m, r in results.items()}
-        write_json(Path(json_out), json.loads(json.dumps(payload, default=str)))
-    return format_tables(results)
+        write_json(Path(json_out), _finite(json.loads(json.dumps(payload, default=str))))
+    return text
+
+
+def _finite(value):
+    """NaN (a photo not measured, an unscaled length) as JSON null."""
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    if isinstance(value, dict):
+        return {k: _finite(v) for k, v in value.items()}
+    if isinstance(value, list):
+        return [_finite(v) for v in value]
+    return value
