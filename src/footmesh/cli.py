@@ -404,6 +404,7 @@ def _add_eval_commands(sub: argparse._SubParsersAction) -> None:
     meas.add_argument("--n", type=int, default=60, help="photos per mode (default 60)")
     meas.add_argument("--size", type=int, default=640, help="photo side, px (default 640)")
     meas.add_argument("--views", choices=("random", "thesis"), default="random", help="camera views")
+    meas.add_argument("--seed", type=int, default=4242, help="seed of the test photos (default 4242; training: 1-3)")
     meas.add_argument("--json", help="also write per-photo records to this JSON file")
     meas.add_argument("--no-progress", action="store_true", help="no progress bar")
     meas.set_defaults(func=_run_eval_measure)
@@ -438,7 +439,7 @@ def _run_eval_measure(args: argparse.Namespace) -> int:
         raise UserError(f"--modes must be a comma list of {', '.join(MODES)}; got {args.modes!r}")
     if args.n < 1 or args.size < 128:
         raise UserError("--n must be at least 1 and --size at least 128")
-    run_eval(modes, args.n, args.size, args.views, args.json, progress=not args.no_progress)
+    run_eval(modes, args.n, args.size, args.views, args.json, progress=not args.no_progress, seed=args.seed)
     return 0
 
 

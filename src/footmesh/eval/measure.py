@@ -114,7 +114,9 @@ def _write_inputs(sample: dict, folder: Path, with_depth: bool) -> dict:
     return paths
 
 
-def evaluate_mode(mode: str, n: int, size: int, views: str = "random", progress: bool = True) -> ModeResult:
+def evaluate_mode(
+    mode: str, n: int, size: int, views: str = "random", progress: bool = True, seed: int = EVAL_SEED
+) -> ModeResult:
     """Measure ``n`` synthetic photos of ``mode`` with the full pipeline."""
     from tqdm import tqdm
 
@@ -133,7 +135,7 @@ def evaluate_mode(mode: str, n: int, size: int, views: str = "random", progress:
     with tempfile.TemporaryDirectory(prefix="footmesh-eval-") as tmp:
         for i in tqdm(range(n), desc=f"eval measure {mode}", disable=not progress):
             reference = REFERENCES[i % 3] if mode == "rgb_ref" else "none"
-            sample = renderer(reference).render(EVAL_SEED + MODES.index(mode), i)
+            sample = renderer(reference).render(seed + MODES.index(mode), i)
             side = "right" if int(sample["side"]) else "left"
             view = None
             if int(sample["view_id"]) >= 0:
@@ -235,11 +237,17 @@ def format_tables(results: dict[str, ModeResult]) -> str:
 
 
 def run_eval(
-    modes: list[str], n: int, size: int, views: str, json_out: str | None = None, progress: bool = True
+    modes: list[str],
+    n: int,
+    size: int,
+    views: str,
+    json_out: str | None = None,
+    progress: bool = True,
+    seed: int = EVAL_SEED,
 ) -> str:
     """Evaluate the modes and return the tables (and write per-photo records as JSON)."""
     torch.set_num_threads(max(1, torch.get_num_threads()))
-    results = {m: evaluate_mode(m, n, size, views, progress) for m in modes}
+    results = {m: evaluate_mode(m, n, size, views, progress, seed) for m in modes}
     text = format_tables(results)
     print(text, flush=True)  # before anything that could fail: the numbers took minutes
     if json_out:
