@@ -26,7 +26,7 @@ WIDTHS = (8, 8, 16, 16)
 # network (an untrained one is off by 40+ px, a half-pixel convention slip shows in the silhouette IoU).
 MAX_JOINT_PX = {"rgbd": 12.0, "depth": 12.0, "rgb": 16.0}
 """Mean joint error, px of a 224 image, over the joints projecting inside it."""
-MIN_SILHOUETTE_IOU = 0.85
+MIN_SILHOUETTE_IOU = {"rgb": 0.75, "rgbd": 0.85, "depth": 0.85}
 """Mean intersection over union of the predicted (>= 0.5) and true silhouettes."""
 ACCURACY_SCENES = 8
 ACCURACY_SEED = 777
@@ -183,4 +183,4 @@ def test_shipped_networks_find_silhouettes_and_joints_of_fresh_scenes(kind, requ
         ious.append((cues.mask & sil).sum() / max((cues.mask | sil).sum(), 1))
     mean_error, mean_iou = float(np.mean(errors)), float(np.mean(ious))
     assert mean_error <= MAX_JOINT_PX[kind], f"{kind}: mean joint error {mean_error:.2f} px"
-    assert mean_iou >= MIN_SILHOUETTE_IOU, f"{kind}: silhouette IoU {mean_iou:.3f}"
+    assert mean_iou >= MIN_SILHOUETTE_IOU[kind], f"{kind}: silhouette IoU {mean_iou:.3f}"

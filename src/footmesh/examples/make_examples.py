@@ -2,7 +2,8 @@
 
 Three synthetic phone photos with known truth, chosen as the first samples of fixed seeds that show what the
 demo needs: a left foot beside an A4 sheet (RGB, focal length in EXIF), a right foot with a depth map (RGB-D,
-K.json), and a right foot with a bank card (RGB, K.json). ``truth.json`` holds the true measurements.
+K.json), and a right foot with a bank card (RGB, K.json); seen from the side, the reference object whole in view
+(as the photo guide asks) and found by the detector. ``truth.json`` holds the true measurements.
 """
 
 from __future__ import annotations
@@ -14,6 +15,7 @@ from pathlib import Path
 import numpy as np
 from PIL import Image
 
+from footmesh.cues.reference import detect_reference
 from footmesh.eval.measure import true_measurements
 from footmesh.synth.render import Renderer
 from footmesh.synth.scene import SynthConfig
@@ -35,7 +37,7 @@ def _wanted(sample: dict, side: str, size: int) -> bool:
     visible = foot_axis_z < 0.5
     margin = 0.03 * size
     inside = (sample["joints2d"] > margin).all() and (sample["joints2d"] < size - margin).all()
-    ref_ok = int(np.sum(sample["ref_corners_visible"])) >= 3 if int(sample["ref_type"]) else True
+    ref_ok = bool(np.all(sample["ref_corners_visible"])) if int(sample["ref_type"]) else True
     return (
         (int(sample["side"]) == (side == "right"))
         and not bool(sample["lifted"])
@@ -51,10 +53,17 @@ def main() -> None:
         seed = SEED + k
         # search at a small size (the scene does not depend on it), render the chosen one at full size
         finder = Renderer(SynthConfig(size=SEARCH_SIZE, reference=reference))
+        full = Renderer(SynthConfig(size=SIZE, reference=reference))
         index = 0
-        while not _wanted(finder.render(seed, index), side, SEARCH_SIZE):
+        while True:
+            if _wanted(finder.render(seed, index), side, SEARCH_SIZE):
+                sample = full.render(seed, index)
+                # the photo guide asks for the whole object in view; the demo shows such a photo
+                if reference == "none" or detect_reference(
+                    sample["rgb"], sample["K"], exclude_mask=sample["labels"] == 1
+                ):
+                    break
             index += 1
-        sample = Renderer(SynthConfig(size=SIZE, reference=reference)).render(seed, index)
         K = sample["K"]
         exif = Image.Exif()
         if not depth and reference == "a4":
