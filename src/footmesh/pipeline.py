@@ -247,6 +247,8 @@ def run_pipeline(photo: Photo, side: str, config: MeasureConfig, input: str = "a
     faces = model.faces(fit.side).numpy()
     measured = measure_foot(canonical, faces, FootLandmarks.from_joints(rest_joints), side=fit.side)
     scale_source = "depth" if kind != "rgb" else (reference.kind if reference is not None else "none")
+    if not fit.scaled:  # the fit could not use the evidence: say so rather than name a source it did not use
+        scale_source = "none"
     if fit.scaled:
         measured = measured.with_uncertainties(
             measurement_uncertainty(fit, measured, scale_source, reference, model, config)
