@@ -311,16 +311,11 @@ def _add_train_commands(sub: argparse._SubParsersAction) -> None:
     recon.set_defaults(func=_run_train_recon)
 
 
-def _run_train_cues(args: argparse.Namespace) -> int:
+def _train_flags(train, args: argparse.Namespace):
+    """``train`` (a ``TrainConfig``) with the command-line flags that were given."""
     from dataclasses import replace
 
-    from footmesh.config import CuesNetConfig, load_config
-    from footmesh.train.cues import train_cues
-
-    config = load_config(args.config, input=args.input)
-    if args.thesis:
-        config = replace(config, net=CuesNetConfig.thesis(args.input))
-    train_overrides = {
+    flags = {
         "steps": args.steps,
         "batch_size": args.batch_size,
         "max_minutes": args.max_minutes,
@@ -328,12 +323,13 @@ def _run_train_cues(args: argparse.Namespace) -> int:
         "threads": args.threads,
     }
     for name in ("steps", "batch_size", "threads"):
-        value = train_overrides[name]
+        value = flags[name]
         if value is not None and value < 1:
             raise UserError(f"--{name.replace('_', '-')} must be at least 1, got {value}")
-    config = replace(config, train=replace(config.train, **{k: v for k, v in train_overrides.items() if v is not None}))
-    out = args.out or f"runs/cues-{args.input}"
-    result = train_cues(args.data, out, config, progress=not args.no_progress)
+    return replace(train, **{k: v for k, v in flags.items() if v is not None})
+
+
+def _log_training(result, out: str) -> None:
     state = "finished" if result.finished else "stopped (rerun the same command to resume)"
     metrics = ", ".join(f"{k} {v:.4g}" for k, v in result.metrics.items())
     log.info(
@@ -344,6 +340,21 @@ def _run_train_cues(args: argparse.Namespace) -> int:
         metrics,
         out,
     )
+
+
+def _run_train_cues(args: argparse.Namespace) -> int:
+    from dataclasses import replace
+
+    from footmesh.config import CuesNetConfig, load_config
+    from footmesh.train.cues import train_cues
+
+    config = load_config(args.config, input=args.input)
+    if args.thesis:
+        config = replace(config, net=CuesNetConfig.thesis(args.input))
+    config = replace(config, train=_train_flags(config.train, args))
+    out = args.out or f"runs/cues-{args.input}"
+    result = train_cues(args.data, out, config, progress=not args.no_progress)
+    _log_training(result, out)
     return 0
 
 
@@ -358,31 +369,10 @@ def _run_train_recon(args: argparse.Namespace) -> int:
     # a kind changed by the flag brings its own default loss (the EdgeConv baseline: the Chamfer distance)
     loss = args.loss or (config.model.loss if kind == config.model.kind else LOSSES[kind][0])
     model = replace(config.model, input=args.input, kind=kind, loss=loss)
-    train_overrides = {
-        "steps": args.steps,
-        "batch_size": args.batch_size,
-        "max_minutes": args.max_minutes,
-        "init_from": args.init_from,
-        "threads": args.threads,
-    }
-    for name in ("steps", "batch_size", "threads"):
-        value = train_overrides[name]
-        if value is not None and value < 1:
-            raise UserError(f"--{name.replace('_', '-')} must be at least 1, got {value}")
-    train = replace(config.train, **{k: v for k, v in train_overrides.items() if v is not None})
-    config = replace(config, model=model, train=train)
+    config = replace(config, model=model, train=_train_flags(config.train, args))
     out = args.out or f"runs/recon-{args.input}-{kind if kind == 'edgeconv' else loss}"
     result = train_recon(args.data, out, config, progress=not args.no_progress)
-    state = "finished" if result.finished else "stopped (rerun the same command to resume)"
-    metrics = ", ".join(f"{k} {v:.4g}" for k, v in result.metrics.items())
-    log.info(
-        "%s after %d steps in %.0f min; %s; weights: %s/weights.pt",
-        state,
-        result.steps_done,
-        result.seconds / 60,
-        metrics,
-        out,
-    )
+    _log_training(result, out)
     return 0
 
 
