@@ -1,48 +1,217 @@
-"""Reference objects on the floor: found in rendered scenes, their floor plane in millimetres."""
+"""Reference objects on the floor (``footmesh.cues.reference``): found in rendered scenes with known truth, their
+corners, kind and floor plane in millimetres; nothing where there is no object or a rectangle of the wrong shape."""
 
 from __future__ import annotations
 
+import functools
+import math
+
+import cv2
 import numpy as np
 import pytest
 
-from footmesh.cues.reference import detect_reference
+from footmesh.cues.reference import SIZES_MM, ReferenceObject, detect_reference
+from footmesh.synth import textures
 from footmesh.synth.render import Renderer
-from footmesh.synth.scene import SynthConfig
+from footmesh.synth.scene import REFERENCE_KINDS, SynthConfig
+
+SIZE = 480
+SEED = 31
+MAX_CORNER_PX = 1.5
+"""Largest error of a visible corner (px of a SIZE image)."""
+MAX_DISTANCE_REL = 0.01
+"""Largest relative error of the camera-to-floor and camera-to-object distances."""
 
 
-def _scenes(kind: str, n: int, size: int = 640):
-    renderer = Renderer(SynthConfig(size=size, reference=kind))
-    for i in range(n):
-        sample = renderer.render(555, i)
-        if kind == "none" or bool(np.all(sample["ref_corners_visible"])):
-            yield sample
+@functools.cache
+def _renderer(kind: str) -> Renderer:
+    return Renderer(SynthConfig(size=SIZE, reference=kind))
 
 
-def test_marker_gives_the_floor_distance_within_one_percent():
-    found = 0
-    for s in _scenes("marker", 12):  # the marker is often partly out of view; 2 of these 12 are whole
-        obj = detect_reference(s["rgb"], s["K"], exclude_mask=s["labels"] == 1)
-        if obj is None:
-            continue
-        assert obj.kind == "marker"
-        found += 1
-        corner0 = s["ref_corners3d"][0]
-        assert np.linalg.norm(obj.cam_from_floor[:3, 3]) == pytest.approx(np.linalg.norm(corner0), rel=0.01)
-        assert np.abs(obj.corners_px - s["ref_corners2d"]).max() < 2.0
-        assert obj.scale_rel_sd > 0
-    assert found >= 1
+@functools.cache
+def _sample(kind: str, index: int) -> dict:
+    return _renderer(kind).render(SEED, index)
+
+
+def _scenes(kind: str, want: int, wanted=None, limit: int = 16) -> list[dict]:
+    """The first ``want`` samples of ``kind`` that ``wanted(sample, scene)`` accepts (default: the whole object
+    in view), searched among ``limit``."""
+    if wanted is None:
+
+        def wanted(sample, scene):
+            return bool(np.all(sample["ref_corners_visible"]))
+
+    found = []
+    for i in range(limit):
+        sample = _sample(kind, i)
+        if wanted(sample, _renderer(kind).scene(SEED, i)):
+            found.append(sample)
+            if len(found) == want:
+                return found
+    pytest.fail(f"only {len(found)} of {want} wanted {kind} scenes among the first {limit} (seed {SEED})")
+
+
+def _foot_and_leg(sample: dict) -> np.ndarray:
+    return (sample["labels"] == 1) | (sample["labels"] == 2)
+
+
+def _corner_error(obj: ReferenceObject, sample: dict) -> np.ndarray:
+    """(4,) px error of each corner; a sheet or card may start at either end of its length (the same rectangle
+    turned half a turn), a marker only where its pattern says."""
+    truth = sample["ref_corners2d"].astype(np.float64)
+    shifts = (0,) if obj.kind == "marker" else (0, 2)
+    return min((np.linalg.norm(np.roll(obj.corners_px, s, axis=0) - truth, axis=1) for s in shifts), key=np.max)
+
+
+def _truth_distances(sample: dict) -> tuple[float, float]:
+    """True camera-to-floor and camera-to-object-centre distances (mm)."""
+    cam = sample["cam_from_scene"]
+    floor = float(-cam[:3, 2] @ cam[:3, 3])
+    return floor, float(np.linalg.norm(sample["ref_corners3d"].astype(np.float64).mean(axis=0)))
+
+
+def _check_found(obj: ReferenceObject | None, sample: dict, kind: str) -> None:
+    assert obj is not None, f"no {kind} found"
+    assert obj.kind == kind
+    assert obj.size_mm == SIZES_MM[kind]
+    visible = sample["ref_corners_visible"]
+    error = _corner_error(obj, sample)
+    assert error[visible].max() < MAX_CORNER_PX, f"corner errors {error.round(2)} px (visible {visible})"
+    floor, centre = _truth_distances(sample)
+    assert obj.floor_distance_mm == pytest.approx(floor, rel=MAX_DISTANCE_REL)
+    assert obj.object_distance_mm == pytest.approx(centre, rel=MAX_DISTANCE_REL)
+    # the floor's z points up out of the floor, towards the camera: along the scene's up axis
+    up = sample["cam_from_scene"][:3, 2]
+    assert math.degrees(math.acos(min(1.0, float(obj.floor_normal @ up)))) < 2.0
+    assert 0 < obj.fit_rel_sd <= obj.scale_rel_sd < 0.03
+    assert 0 <= obj.reprojection_px < 1.0
+
+
+def test_sizes_are_the_renderers():
+    """The sizes the detector measures with are the ones the synthetic scenes are drawn with."""
+    assert SIZES_MM["a4"] == textures.A4_MM
+    assert SIZES_MM["card"] == textures.CARD_MM
+    assert SIZES_MM["marker"] == (textures.MARKER_MM, textures.MARKER_MM)
+
+
+@pytest.mark.parametrize("kind", ["marker", "a4", "card"])
+def test_whole_object_gives_corners_and_floor_plane(kind):
+    for sample in _scenes(kind, 2):
+        _check_found(detect_reference(sample["rgb"], sample["K"]), sample, kind)
+
+
+def test_floor_frame_is_the_objects():
+    """``cam_from_floor`` puts the rectangle's corners, in local order, where the camera sees them; floor points
+    come back where they lie on the object."""
+    sample = _scenes("marker", 1)[0]
+    obj = detect_reference(sample["rgb"], sample["K"])
+    length, width = obj.size_mm
+    local = np.array([[0, 0, 0], [length, 0, 0], [length, width, 0], [0, width, 0]], dtype=np.float64)
+    cam = local @ obj.cam_from_floor[:3, :3].T + obj.cam_from_floor[:3, 3]
+    truth = sample["ref_corners3d"].astype(np.float64)
+    assert np.linalg.norm(cam - truth, axis=1).max() < MAX_DISTANCE_REL * np.linalg.norm(truth, axis=1).min()
+    projected = cam @ sample["K"].T
+    np.testing.assert_allclose(projected[:, :2] / projected[:, 2:], obj.corners_px, atol=1.0)
+    on_floor = obj.floor_points(sample["ref_corners2d"], sample["K"])
+    np.testing.assert_allclose(on_floor, local, atol=1.0)
+    assert np.isnan(obj.floor_points(np.array([[sample["K"][0, 2], -1e6]]), sample["K"])).all()  # above the horizon
+
+
+def test_foot_standing_on_the_sheet():
+    """The foot hides part of the sheet (and maybe a corner): the sides it leaves in view still give the sheet,
+    with or without the foot's mask."""
+
+    def under(sample, scene):
+        return scene.reference.under_foot and int(sample["ref_corners_visible"].sum()) >= 3
+
+    sample = _scenes("a4", 1, under, limit=24)[0]
+    for mask in (None, _foot_and_leg(sample)):
+        _check_found(detect_reference(sample["rgb"], sample["K"], exclude_mask=mask), sample, "a4")
 
 
 def test_no_object_no_reference():
-    for s in _scenes("none", 3):
-        assert detect_reference(s["rgb"], s["K"], exclude_mask=s["labels"] == 1) is None
+    for sample in _scenes("none", 3, lambda sample, scene: True):
+        assert int(sample["ref_type"]) == REFERENCE_KINDS.index("none")
+        assert detect_reference(sample["rgb"], sample["K"]) is None
+        assert detect_reference(sample["rgb"], sample["K"], exclude_mask=_foot_and_leg(sample)) is None
 
 
-def test_bad_inputs_are_refused():
+def test_only_the_kinds_asked_for():
+    """A card is never reported as a sheet (nor a sheet as a card); asking for it alone still finds it."""
+    card = _scenes("card", 1)[0]
+    assert detect_reference(card["rgb"], card["K"], kinds=("a4", "marker")) is None
+    assert detect_reference(card["rgb"], card["K"], kinds=("card",)).kind == "card"
+    sheet = _scenes("a4", 1)[0]
+    assert detect_reference(sheet["rgb"], sheet["K"], kinds=("card",)) is None
+
+
+def test_mirrored_photo_of_a_marker():
+    """A photo flipped left to right (a mirrored selfie) shows a mirrored marker: still read, and it gives the
+    same floor distance; the corners are the flipped ones, their order keeps the floor's z towards the camera."""
+    sample = _scenes("marker", 1)[0]
+    direct = detect_reference(sample["rgb"], sample["K"])
+    flipped_k = sample["K"].copy()
+    flipped_k[0, 2] = (SIZE - 1) - flipped_k[0, 2]
+    mirror = detect_reference(np.ascontiguousarray(sample["rgb"][:, ::-1]), flipped_k)
+    assert mirror is not None and mirror.kind == "marker" and mirror.mirrored != direct.mirrored
+    assert mirror.floor_distance_mm == pytest.approx(direct.floor_distance_mm, rel=0.005)
+    flipped = sample["ref_corners2d"].astype(np.float64) * [-1, 1] + [SIZE - 1, 0]
+    nearest = np.linalg.norm(mirror.corners_px[:, None] - flipped[None], axis=2).min(axis=1)
+    assert nearest.max() < MAX_CORNER_PX
+    assert mirror.floor_normal @ mirror.cam_from_floor[:3, 3] < 0
+
+
+def _drawn_rectangle(length: float, width: float, tilt_deg: float = 40.0, size: int = 320) -> tuple:
+    """A white rectangle (mm) lying on a plain grey floor seen by a pinhole camera, drawn at 4x and averaged down
+    (anti-aliased): (rgb (size, size, 3) uint8, K, true corners (4, 2) px)."""
+    f = 0.9 * size
+    K = np.array([[f, 0, (size - 1) / 2], [0, f, (size - 1) / 2], [0, 0, 1.0]])
+    t = math.radians(tilt_deg)
+    rot = np.array([[1, 0, 0], [0, -math.cos(t), -math.sin(t)], [0, math.sin(t), -math.cos(t)]])  # floor -> camera
+    centre = np.array([10.0, -5.0, 700.0])
+    local = np.array([[0, 0, 0], [length, 0, 0], [length, width, 0], [0, width, 0]]) - [length / 2, width / 2, 0]
+    cam = local @ rot.T + centre
+    px = cam @ K.T
+    corners = px[:, :2] / px[:, 2:]
+    big = np.full((4 * size, 4 * size, 3), (90, 95, 100), np.uint8)
+    cv2.fillConvexPoly(
+        big, np.round((corners + 0.5) * 4 * 16 - 0.5 * 16).astype(np.int32), (245, 245, 240), cv2.LINE_8, 4
+    )
+    rgb = cv2.resize(big, (size, size), interpolation=cv2.INTER_AREA)
+    return rgb, K, corners
+
+
+def test_metric_shape_names_the_object():
+    """A white rectangle of A4's proportions is an A4 sheet, of a card's a card; one of neither (4:3, 2:1, a
+    square) is nothing, however it is foreshortened in the image."""
+    rgb, K, corners = _drawn_rectangle(*SIZES_MM["a4"])
+    obj = detect_reference(rgb, K)
+    assert obj is not None and obj.kind == "a4"
+    nearest = np.linalg.norm(obj.corners_px[:, None] - corners[None], axis=2).min(axis=1)
+    assert nearest.max() < 0.5
+    assert obj.object_distance_mm == pytest.approx(np.linalg.norm([10.0, -5.0, 700.0]), rel=0.005)
+    rgb, K, _ = _drawn_rectangle(*SIZES_MM["card"], tilt_deg=20.0)
+    assert detect_reference(rgb, K).kind == "card"
+    for length, width in ((280.0, 210.0), (300.0, 150.0), (200.0, 200.0)):
+        rgb, K, _ = _drawn_rectangle(length, width)
+        assert detect_reference(rgb, K) is None, (length, width)
+
+
+def test_bad_input_is_refused_clearly():
     image = np.zeros((100, 100, 3), np.uint8)
-    with pytest.raises(ValueError):
+    K = np.array([[100.0, 0, 50], [0, 100.0, 50], [0, 0, 1]])
+    with pytest.raises(ValueError, match="K must be the"):
         detect_reference(image, np.eye(2))
-    with pytest.raises(ValueError):
-        detect_reference(image[..., 0], np.eye(3))
-    with pytest.raises(ValueError):
-        detect_reference(image, np.eye(3), kinds=("banana",))
+    with pytest.raises(ValueError, match="colour image"):
+        detect_reference(image[..., 0], K)
+    with pytest.raises(ValueError, match="colour image"):
+        detect_reference(np.zeros((100, 100, 4), np.uint8), K)
+    with pytest.raises(ValueError, match="0..1"):
+        detect_reference(np.full((100, 100, 3), 2.0), K)
+    with pytest.raises(ValueError, match="focal"):
+        detect_reference(image, np.diag([-100.0, 100.0, 1.0]))
+    with pytest.raises(ValueError, match="exclude_mask"):
+        detect_reference(image, K, exclude_mask=np.zeros((10, 10), bool))
+    with pytest.raises(ValueError, match="kinds"):
+        detect_reference(image, K, kinds=("banana",))
+    assert detect_reference(image, K) is None  # a blank image is no error, and no object

@@ -105,3 +105,20 @@ def test_rasteriser_matches_a_naive_loop():
                 if (w >= -1e-9).all():
                     best = min(best, 1.0 / (w / z[f]).sum())
             assert np.isclose(frag.depth[i, j], best) or (np.isinf(best) and np.isinf(frag.depth[i, j]))
+
+
+def test_random_views_frame_the_reference_object_as_the_photo_guide_asks():
+    from footmesh.synth.render import Renderer
+    from footmesh.synth.scene import SynthConfig
+
+    for kind in ("a4", "card"):
+        framed = Renderer(SynthConfig(size=48, reference=kind, frame_reference=True))
+        foot_only = Renderer(SynthConfig(size=48, reference=kind, frame_reference=False))
+        inside = {True: 0, False: 0}
+        for i in range(8):
+            for frames, r in ((True, framed), (False, foot_only)):
+                s = r.render(11, i)
+                corners = _project(s["ref_corners3d"].astype(np.float64), s["K"])
+                inside[frames] += bool(((corners >= 0) & (corners <= 48)).all())
+        assert inside[True] == 8, inside  # every corner in the photo
+        assert inside[False] < 8, inside  # framing on the foot alone cuts some objects off

@@ -26,6 +26,7 @@ from footmesh.train.recon import (
     augment_recon,
     copy_matching,
     evaluate_arrays,
+    keep_with_depth,
     load_recon_arrays,
     make_recon_batch,
     train_recon,
@@ -131,6 +132,18 @@ def test_identity_augmentation_changes_nothing_and_non_square_pixels_are_refused
     k[:, 1, 1] *= 1.1
     with pytest.raises(ValueError, match="square pixels"):
         augment_recon(replace(batch, K=k), still, torch.Generator())
+
+
+def test_samples_whose_depth_map_was_emptied_leave_the_batch(tiny_data):
+    arrays = load_recon_arrays(tiny_data, SIZE, progress=False)
+    batch = make_recon_batch(arrays, np.arange(3))
+    depth = batch.depth.clone()
+    depth[1] = 0.0  # e.g. a zoom that cropped away a small foot's few depth pixels
+    kept = keep_with_depth(replace(batch, depth=depth))
+    assert kept.depth.shape[0] == 2 and torch.equal(kept.vertices, batch.vertices[[0, 2]])
+    x, ref = recon_input("rgbd", kept.rgb, kept.depth)
+    assert torch.isfinite(x).all() and (ref > 0).all()
+    assert keep_with_depth(batch) is batch
 
 
 def test_train_two_steps_writes_weights_and_card_then_resumes(tiny_data, tmp_path):

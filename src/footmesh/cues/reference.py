@@ -2,23 +2,27 @@
 
 A plain photo has no scale; a known rectangle lying on the floor gives it. ``detect_reference`` finds the object,
 its four corners to a fraction of a pixel, tells which object it is from its metric aspect ratio (recovered with
-the intrinsics K), and solves the plane's pose in millimetres (planar PnP, IPPE). Method and numbers:
+the intrinsics K), and solves the plane's pose in millimetres (planar PnP, IPPE). Method and measured accuracy:
 docs/reference.md.
 
-Pipeline:
+Steps:
 
 1. Marker: ``cv2.aruco.ArucoDetector`` (DICT_4X4_50, id 0) on the image, else on its mirror image (a mirrored
    photo, or a mirrored print, still gives a metric plane).
-2. Sheet and card: candidate quadrilaterals from the outlines of regions at several brightness / whiteness /
-   channel thresholds and from Canny edges (convex hull, ``approxPolyDP``; a hull with a corner cut off by the
-   foot keeps its four longest sides), each side re-fitted to the outline points near it.
-3. A cheap test first: the quad's rays, cut by a plane, give a parallelogram (unique up to scale); a rectangle's
-   image must give a right angle, and its side ratio names the object (A4 1.414, card 1.586).
-4. Sub-pixel sides: along each side (its ends skipped: rounded card corners, the foot over a sheet's corner)
-   the blurred image is sampled across the side, projected on the side's own colour contrast, and the strongest
-   edge of that polarity is located to sub-pixel precision; a robust line fit through these points and the
-   intersections of neighbouring lines give the corners. The same for the marker's black square.
-5. Strict tests (right angle, side ratio, edge support on every side, size, inside the image), then the pose:
+2. Sheet and card: candidate quadrilaterals from the outlines of regions at several levels of whiteness (sheet),
+   grey and each colour channel (card), and of Canny edges: each outline's convex hull is simplified
+   (``approxPolyDP``) and every four of its sides that enclose it make a candidate (the foot on a sheet cuts
+   corners off its region), screened at once by a loose metric test (3), its sides then re-fitted to the outline
+   points near them.
+3. Metric test: the rays through the four corners, cut by a plane, give a parallelogram (unique up to scale); a
+   rectangle's image gives a right angle, and its side ratio names the object (A4 1.414, card 1.586).
+4. Sub-pixel sides: along each side (its ends skipped: rounded card corners) the blurred image is sampled across
+   the side and the strongest colour gradient that is a step (not a thin line) is located to sub-pixel
+   precision; a robust line fit through these points and the intersections of neighbouring lines give the
+   corners. The same for the marker's black square.
+5. Strict tests: right angle and side ratio (tolerances widened by the corners' own noise), every side's edge
+   present where it is not covered (the foot over a sheet may hide part of a side or a corner), straight, and
+   not running on past the corners (planks, tiles), a white sheet, inside the image; then the pose:
    ``cv2.solvePnP(..., SOLVEPNP_IPPE)`` on the known rectangle, floor z pointing to the camera.
 6. Uncertainty: each line's offset and angle SD from its fit residuals, pushed through intersection and PnP by
    finite differences to the camera-to-object distance; plus the object's size tolerance.
@@ -57,6 +61,8 @@ SIZE_REL_SD: dict[str, float] = {
 
 ARUCO_DICTIONARY = cv2.aruco.DICT_4X4_50
 ARUCO_ID = 0
+MARKER_SHEET_SCALE = 1.5
+"""The printed sheet around a marker's black square (140 mm around 100 mm), with room for perspective."""
 
 ASPECT_TOLERANCE = 0.045
 """Largest |log(measured side ratio / the object's)| accepted; A4 and card differ by 0.115 in log ratio."""
@@ -64,43 +70,68 @@ ANGLE_TOLERANCE_DEG = 3.5
 """Largest departure from a right angle of the recovered corner angle (metric, with K)."""
 MAX_ASPECT_TOLERANCE = 0.05
 MAX_ANGLE_TOLERANCE_DEG = 6.0
-"""Where the corners are noisy the tolerances grow to 3 SD of the measured ratio and angle, up to these."""
+"""Where the corners are noisy the tolerances grow to 3 SD of the measured ratio and angle, up to these (never
+so far that a sheet could pass for a card)."""
 LOOSE_FACTOR = 3.0
-"""Candidates are refined when they pass the tests with tolerances this many times wider."""
+"""Candidates are refined when they pass the metric test with tolerances this many times wider."""
 MIN_SIDE_PX = 14.0
-"""Shortest side (px) of an object worth measuring: below it the corners cannot give the scale to 1 %."""
+"""Shortest side (px) of an object worth measuring."""
 BORDER_MARGIN_PX = 2.0
 """Corners must lie this far inside the image: an object cut by the border gives a false quadrilateral."""
-MIN_SIDE_SUPPORT = 0.4
-"""Each side must show its edge along at least this fraction of its sampled length (the foot may hide some)."""
-MIN_MEAN_SUPPORT = 0.7
-"""... and the four sides together along this fraction."""
+MIN_SIDE_SUPPORT = 0.35
+MIN_MEAN_SUPPORT = 0.6
+"""Each side must show its edge at this fraction (the four sides together: the second) of the positions along it
+that show either the edge or plainly no edge; where the foot or its shadow covers the side nothing is known and
+nothing counts (``_side_edge_points``)."""
+MIN_COVERAGE: dict[str, tuple[float, float]] = {"a4": (0.2, 0.4), "card": (0.6, 0.8), "marker": (0.6, 0.8)}
+"""Each side must show its edge along the first fraction of its sampled length at least, and the four sides
+together along the second: a sheet may lie under the foot, a card or a marker lies beside it."""
+OCCLUSION_MATCH = 0.35
+"""Colours closer than this fraction of the change across a side count as the same colour."""
+MAX_RESIDUAL_RATIO = 2.0
+STRAIGHT_EDGE_PX = 0.5
+"""A side's edge points may scatter about its line up to this many times the median side's residual SD, or up
+to this many px (an edge this straight is straight): a side fitted to a curved outline (the foot's, where it
+hides the sheet's side) scatters more."""
+CONTINUATION_SPAN = (0.05, 0.3)
+"""Stretch beyond each corner, in side lengths, where the side's edge must not go on."""
+MAX_CONTINUATION = 0.5
+CONTINUATION_RADIUS_PX = 1.0
+"""Largest fraction of that stretch that may show an edge within this distance of the side's line."""
+PAPER_MAX_SATURATION = 0.3
+"""An A4 sheet is white: (max - min) / max of its colour just inside its sides stays below this (and it is
+brighter than the floor around it)."""
 MIN_CONTRAST = 0.04
-"""Smallest colour step across a side (image values 0..1) that counts as an edge."""
+"""Smallest colour change across a side (image values 0..1, Euclidean over RGB) that counts as an edge."""
 DISTANCE_RANGE_MM = (80.0, 5000.0)
 """Plausible camera-to-object distances of a foot photo."""
 MAX_SCALE_REL_SD = 0.03
 """An object whose corners fix the scale worse than this (relative SD) is not reported."""
 MIN_CORNER_SD_PX = 0.05
-"""Floor of the corners' noise estimate (px): residuals of a few points underestimate it."""
-BLUR_SIGMA_PX = 1.0
+"""Floor of an edge's residual SD (px): residuals of a few points underestimate it."""
+BLUR_SIGMA_PX = 0.75
 """Gaussian blur before locating edges; symmetric, so it does not move a straight edge."""
-END_SKIP = 0.1
+END_SKIP = 0.06
+"""Fraction of each side skipped at both ends when fitting its line (a card's rounded corners: 3.7 % of its
+length, 5.9 % of its width)."""
 PLATEAU_PX = 2.5
 """The colours on both sides of an edge are read this far (px) beyond the search window."""
-"""Fraction of each side skipped at both ends when fitting its line (rounded corners, occluded corners)."""
-
-CONTINUATION_SPAN = (0.05, 0.3)
-"""Stretch beyond each corner, in side lengths, where the side's edge must not go on."""
-MAX_CONTINUATION = 0.5
-"""Largest fraction of that stretch that may show the side's edge (in line with it, same colours)."""
-PAPER_MAX_SATURATION = 0.3
-"""An A4 sheet is white: (max - min) / max of its colour just inside its sides stays below this."""
+SHEET_MIN_AREA = 0.004
+"""A white region smaller than this fraction of the image is not completed into a sheet with a hidden corner."""
+COMPLETION_MIN_COVERAGE = 0.5
+COMPLETION_MIN_SUPPORT = 0.8
+"""A sheet is completed from three sides only when each shows its edge along this much of it (coverage,
+support as in ``_Line``)."""
+MAX_HULL_SIDES = 8
+"""A region's hull simplified to more sides than this is no quadrilateral with a few corners cut off."""
+MAX_HIDDEN_AREA_RATIO = 2.0
+"""A quadrilateral guessed from a region with corners cut off may be at most this many times the region."""
 
 _MIN_REGION_AREA_PX = 120.0
 _THRESHOLD_LEVELS = 9
 _KERNEL3 = np.ones((3, 3), np.uint8)
 _KERNEL5 = np.ones((5, 5), np.uint8)
+_COMBINATIONS = {n: np.array(list(itertools.combinations(range(n), 4))) for n in range(4, MAX_HULL_SIDES + 1)}
 
 
 @dataclass(frozen=True)
@@ -142,9 +173,8 @@ class ReferenceObject:
     def object_distance_mm(self) -> float:
         """Distance (mm) from the camera centre to the object's centre."""
         length, width = self.size_mm
-        return float(
-            np.linalg.norm(self.cam_from_floor[:3, :3] @ [length / 2, width / 2, 0] + self.cam_from_floor[:3, 3])
-        )
+        centre = self.cam_from_floor[:3, :3] @ [length / 2, width / 2, 0.0] + self.cam_from_floor[:3, 3]
+        return float(np.linalg.norm(centre))
 
     def floor_points(self, points_px: np.ndarray, K: np.ndarray) -> np.ndarray:
         """(N, 2) px -> (N, 3) mm: where the pixels' rays meet the floor, in the floor frame (z = 0); NaN if never."""
@@ -152,11 +182,9 @@ class ReferenceObject:
         rays = np.concatenate([pts, np.ones((len(pts), 1))], axis=1) @ np.linalg.inv(K).T  # camera frame, z = 1
         rot, trans = self.cam_from_floor[:3, :3], self.cam_from_floor[:3, 3]
         normal = rot[:, 2]
-        denom = rays @ normal
         with np.errstate(divide="ignore", invalid="ignore"):
-            depth = (normal @ trans) / denom
-        hits = rays * depth[:, None]
-        floor = (hits - trans) @ rot  # R^T (p - t)
+            depth = (normal @ trans) / (rays @ normal)
+        floor = (rays * depth[:, None] - trans) @ rot  # R^T (p - t)
         floor[~(depth > 0)] = np.nan
         floor[:, 2] = np.where(np.isfinite(floor[:, 0]), 0.0, np.nan)
         return floor
@@ -175,7 +203,8 @@ def detect_reference(
         K: (3, 3) intrinsics in pixels of this image.
         kinds: which objects to look for (any of ``KINDS``); when several are found the marker wins, then the
             A4 sheet, then the card, whatever the order given.
-        exclude_mask: optional (H, W) bool, pixels not to take edges from (e.g. the foot and leg).
+        exclude_mask: optional (H, W) bool, pixels not to take edges from (e.g. the foot and leg): an edge there
+            neither supports nor contradicts a side.
 
     Returns:
         The ``ReferenceObject``, or None: then the caller reports the result as unscaled.
@@ -193,21 +222,28 @@ def detect_reference(
         if exclude_mask.shape != (h, w):
             raise ValueError(f"exclude_mask must be (H, W) = {(h, w)} like the image, got {exclude_mask.shape}")
         # edges right next to the masked object are its own outline, not the reference's
-        grown = cv2.dilate(exclude_mask.astype(np.uint8), np.ones((5, 5), np.uint8))
-        valid = grown == 0
+        valid = cv2.dilate(exclude_mask.astype(np.uint8), _KERNEL5) == 0
     blurred = cv2.GaussianBlur(image, (0, 0), BLUR_SIGMA_PX)
-    if "marker" in kinds:
-        found = _detect_marker(image, blurred, K, valid)
-        if found is not None:
-            return found
+    found, markers = _detect_marker(image, blurred, K, valid, report="marker" in kinds)
+    if found is not None:
+        return found
     wanted = [k for k in ("a4", "card") if k in kinds]
     if not wanted:
         return None
+    # a marker's cells are rectangles too: nothing is taken from the printed sheet of any marker seen
+    sheets = [(q - q.mean(axis=0)) * MARKER_SHEET_SCALE + q.mean(axis=0) for q in markers]
     best: dict[str, tuple[float, ReferenceObject]] = {}
+    accepted: list[np.ndarray] = []  # corners already found, in canonical order
     for quad in _candidate_quads(blurred, K, wanted):
+        # many thresholds give the same object: refine it once
+        if any(np.max(np.linalg.norm(quad - corners, axis=1)) < 3.0 for corners in accepted):
+            continue
+        if any(_overlaps(quad, sheet) for sheet in sheets):
+            continue
         result = _finish(quad, wanted, blurred, K, valid)
         if result is None:
             continue
+        accepted.append(_canonical(result[1].corners_px))
         score, obj = result
         if obj.kind not in best or score > best[obj.kind][0]:
             best[obj.kind] = (score, obj)
@@ -256,45 +292,51 @@ def _check_intrinsics(K: np.ndarray) -> np.ndarray:
 
 
 def _detect_marker(
-    image: np.ndarray, blurred: np.ndarray, K: np.ndarray, valid: np.ndarray | None
-) -> ReferenceObject | None:
-    """The ArUco marker (DICT_4X4_50, id 0), read upright or in the mirror image."""
+    image: np.ndarray, blurred: np.ndarray, K: np.ndarray, valid: np.ndarray | None, report: bool = True
+) -> tuple[ReferenceObject | None, list[np.ndarray]]:
+    """The ArUco marker (DICT_4X4_50, id 0), read upright or in the mirror image (None unless ``report``), and
+    the (4, 2) px quads of every marker seen (any id)."""
     grey = cv2.cvtColor((image * 255.0 + 0.5).astype(np.uint8), cv2.COLOR_RGB2GRAY)
     params = cv2.aruco.DetectorParameters()
     params.cornerRefinementMethod = cv2.aruco.CORNER_REFINE_SUBPIX
+    # the printed sheet's outline lies 20 mm outside the black square: with OpenCV's default rate the two count as
+    # "too close" and the outer one (no marker) is kept, then dropped when the sheet runs off the image
+    params.minMarkerDistanceRate = 0.02
     detector = cv2.aruco.ArucoDetector(cv2.aruco.getPredefinedDictionary(ARUCO_DICTIONARY), params)
     w = grey.shape[1]
+    seen: list[np.ndarray] = []
     for mirrored in (False, True):
         corners, ids, _ = detector.detectMarkers(cv2.flip(grey, 1) if mirrored else grey)
         if ids is None:
             continue
         for quad, marker_id in zip(corners, ids.ravel(), strict=True):
-            if marker_id != ARUCO_ID:
-                continue
             quad = quad.reshape(4, 2).astype(np.float64)  # pattern's top-left, top-right, bottom-right, bottom-left
             if mirrored:
                 quad[:, 0] = (w - 1) - quad[:, 0]
-                # the mirror image's reading order runs the other way round: top-left first keeps z up
-                ordered = quad
-            else:
-                # upright print seen from above: x along the pattern's bottom edge, y up it, z out of the paper
-                ordered = quad[[3, 2, 1, 0]]
-            obj = _finish(ordered, ["marker"], blurred, K, valid, mirrored=mirrored)
-            if obj is not None:
-                return obj[1]
-    return None
+            seen.append(quad)
+            if marker_id != ARUCO_ID or not report:
+                continue
+            # upright print seen from above: x along the pattern's bottom edge, y up it, z out of the paper; the
+            # mirror image's reading order runs the other way round: top-left first keeps z up
+            ordered = quad if mirrored else quad[[3, 2, 1, 0]]
+            found = _finish(ordered, ["marker"], blurred, K, valid, mirrored=mirrored)
+            if found is not None:
+                return found[1], seen
+    return None, seen
+
+
+def _overlaps(quad: np.ndarray, region: np.ndarray) -> bool:
+    """Whether a (4, 2) quad has its centre or a corner inside the convex (4, 2) region."""
+    contour = region.astype(np.float32).reshape(-1, 1, 2)
+    points = np.concatenate([quad, quad.mean(axis=0, keepdims=True)])
+    return any(cv2.pointPolygonTest(contour, (float(x), float(y)), False) >= 0 for x, y in points)
 
 
 # --- candidate quadrilaterals -------------------------------------------------------------------------------
 
 
 def _candidate_quads(blurred: np.ndarray, K: np.ndarray, kinds: list[str]) -> list[np.ndarray]:
-    """Rough (4, 2) px quadrilaterals (canonical order) that might be a sheet or a card, near duplicates removed.
-
-    Outlines of regions above and below several levels of whiteness (sheet), grey and each colour channel (card,
-    also closed over a card's stripe), and of Canny edges; each outline's hull reduced to four sides, screened by
-    the loose metric test, its sides re-fitted to the outline points near them and screened again.
-    """
+    """Rough (4, 2) px quadrilaterals (canonical order) that might be a sheet or a card, near duplicates removed."""
     h, w = blurred.shape[:2]
     grey = blurred.mean(axis=2)
     # a sheet's region is opened wide as well (white grout and other thin lines joined to it fall away), a card's
@@ -306,7 +348,7 @@ def _candidate_quads(blurred: np.ndarray, K: np.ndarray, kinds: list[str]) -> li
     if "card" in kinds:
         for f in (grey, blurred[..., 0], blurred[..., 1], blurred[..., 2]):
             features.extend([(f, "card"), (-f, "card")])
-    outlines: list[tuple[np.ndarray, bool]] = []  # (contours, whether to add hulls of the largest pieces)
+    outlines: list[tuple[tuple, bool]] = []  # (contours, whether a sheet's: the largest pieces also together)
     for feature, use in features:
         lo, hi = np.percentile(feature[::4, ::4], [1.0, 99.5])
         if hi - lo < MIN_CONTRAST:
@@ -325,12 +367,13 @@ def _candidate_quads(blurred: np.ndarray, K: np.ndarray, kinds: list[str]) -> li
         for low, high in ((10, 30), (25, 75)):
             edges = cv2.dilate(cv2.Canny(u8, low, high, L2gradient=True), _KERNEL3)
             outlines.append((cv2.findContours(edges, cv2.RETR_LIST, cv2.CHAIN_APPROX_NONE)[0], False))
-    seen: set[tuple[int, ...]] = set()
-    quads: list[np.ndarray] = []
-    for contours, pieces in outlines:
+
+    # (simplified hull, its area, outline points, whether a sheet's)
+    polygons: list[tuple[np.ndarray, float, np.ndarray, bool]] = []
+    for contours, sheet in outlines:
         big = [c for c in contours if len(c) >= 20 and cv2.contourArea(c) >= _MIN_REGION_AREA_PX]
         groups = [(c, cv2.contourArea(c)) for c in big]
-        if pieces and len(big) > 1:
+        if sheet and len(big) > 1:
             # a leg across a sheet under the foot cuts its white region in two or three: try them together
             big.sort(key=cv2.contourArea, reverse=True)
             for m in (2, 3)[: len(big) - 1]:
@@ -339,74 +382,162 @@ def _candidate_quads(blurred: np.ndarray, K: np.ndarray, kinds: list[str]) -> li
         for points, area in groups:
             hull = cv2.convexHull(points)
             hull_area = cv2.contourArea(hull)
-            if hull_area < _MIN_REGION_AREA_PX:
-                continue
             # the foot on a sheet eats into its region but leaves most of it: a ring or an L is no rectangle
-            if area < 0.45 * hull_area:
+            if hull_area < _MIN_REGION_AREA_PX or area < 0.45 * hull_area:
                 continue
-            quad = _hull_quad(hull.reshape(-1, 2).astype(np.float64))
-            if quad is None or not _inside(quad, h, w) or (quad := _canonical(quad)) is None:
-                continue
-            if _classify(quad, K, ["a4", "card"], loose=2 * LOOSE_FACTOR) is None:
-                continue
-            quad = _fit_sides_to_points(quad, points.reshape(-1, 2).astype(np.float64))
+            for poly in _simplify(hull):
+                polygons.append((poly, cv2.contourArea(poly.astype(np.float32)), points, sheet))
+    if not polygons:
+        return []
+
+    rough, source = _polygon_quads(polygons)
+    keep = _inside_many(rough, h, w)
+    rough, source = _canonical_many(rough[keep]), source[keep]
+    keep = np.isfinite(rough).all(axis=(1, 2))
+    rough, source = rough[keep], source[keep]
+    passed = _classify_many(rough, K, ["a4", "card"], 2 * LOOSE_FACTOR)
+    seen: set[tuple[int, ...]] = set()
+    quads: list[np.ndarray] = []
+    if passed.any():
+        shape_ok, src = rough[passed], source[passed]
+        _, first = np.unique(
+            np.round(shape_ok / 2.0).astype(np.int64).reshape(len(shape_ok), -1), axis=0, return_index=True
+        )
+        for i in np.sort(first):
+            quad = _fit_sides_to_points(shape_ok[i], polygons[src[i]][2].reshape(-1, 2).astype(np.float64))
             if quad is None or not _inside(quad, h, w) or (quad := _canonical(quad)) is None:
                 continue
             if _classify(quad, K, kinds, loose=LOOSE_FACTOR) is None:
                 continue
             key = tuple(np.round(quad / 2.0).astype(int).ravel().tolist())
-            if key in seen:
-                continue
-            seen.add(key)
-            quads.append(quad)
+            if key not in seen:
+                seen.add(key)
+                quads.append(quad)
+    if "a4" in kinds:
+        # a sheet's region with a corner hidden (the foot, the leg) is no rectangle's image: complete it from three
+        # of its sides, and try it after the others
+        big = np.array([polygons[i][3] and polygons[i][1] >= SHEET_MIN_AREA * h * w for i in source])
+        todo = ~passed & big
+        if todo.any():
+            area = np.array([polygons[i][1] for i in source[todo]])
+            completed = _complete_many(rough[todo], area, K, h, w)
+            if len(completed):
+                _, first = np.unique(
+                    np.round(completed / 4.0).astype(np.int64).reshape(len(completed), -1), axis=0, return_index=True
+                )
+                for quad in completed[np.sort(first)]:
+                    key = tuple(np.round(quad / 2.0).astype(int).ravel().tolist())
+                    if key not in seen:
+                        seen.add(key)
+                        quads.append(quad)
     return quads
 
 
-def _inside(quad: np.ndarray, h: int, w: int) -> bool:
-    """All corners at least BORDER_MARGIN_PX inside the image."""
-    m = BORDER_MARGIN_PX
-    return bool(
-        np.all(np.isfinite(quad))
-        and np.all(quad >= m)
-        and np.all(quad[:, 0] <= w - 1 - m)
-        and np.all(quad[:, 1] <= h - 1 - m)
-    )
+def _complete_many(quads: np.ndarray, region_area: np.ndarray, K: np.ndarray, h: int, w: int) -> np.ndarray:
+    """Sheets (N, 4, 2) px that (M, 4, 2) quads could be with one side wrong (cut across a hidden corner): for
+    each side m, the other three kept and the rectangle of A4's proportions they bound, for either side being the
+    long one. Only those inside the image, holding the quad and at most MAX_HIDDEN_AREA_RATIO times the region.
+
+    Sides m + 1 and m + 3 are parallel on the floor: their images meet at the vanishing point v, and their 3D
+    direction is D1 = K^-1 v. Side m + 2 lies in the plane through the camera with normal K^T l (l its image line)
+    and is perpendicular to D1: D2 = K^T l x D1. The floor's normal is D1 x D2; corners m + 2 and m + 3 are cut
+    from their rays by that plane, and corners m + 1, m = those plus the other side's length along D1.
+    """
+    k_inv = np.linalg.inv(K)
+    hom = np.concatenate([quads, np.ones(quads.shape[:2] + (1,))], axis=2)  # (M, 4, 3)
+    lines = np.cross(hom, np.roll(hom, -1, axis=1))  # side i: corner i -> i + 1
+    length, width = SIZES_MM["a4"]
+    out = []
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        for m in range(4):
+            i1, i2, i3 = (m + 1) % 4, (m + 2) % 4, (m + 3) % 4
+            d1 = np.cross(lines[:, i1], lines[:, i3]) @ k_inv.T  # (M, 3)
+            d2 = np.cross(lines[:, i2] @ K, d1)
+            normal = np.cross(d1, d2)
+            r2, r3 = hom[:, i2] @ k_inv.T, hom[:, i3] @ k_inv.T  # rays of corners m + 2, m + 3
+            s2, s3 = np.sum(normal * r2, axis=1), np.sum(normal * r3, axis=1)
+            p2, p3 = r2 / s2[:, None], r3 / s3[:, None]  # on the plane normal . X = 1 (up to scale and sign)
+            p2 = p2 * np.sign(p2[:, 2:])
+            p3 = p3 * np.sign(p3[:, 2:])
+            u1 = d1 / np.linalg.norm(d1, axis=1, keepdims=True)
+            # towards the quad's own corner m + 1 (the sign of the step along D1 as seen in the image)
+            ahead = p2 + 1e-3 * np.linalg.norm(p2, axis=1, keepdims=True) * u1
+            step = ahead[:, :2] / ahead[:, 2:] - p2[:, :2] / p2[:, 2:]  # normalised image coordinates
+            toward = (hom[:, i1, :2] - hom[:, i2, :2]) @ k_inv[:2, :2].T
+            u1 = u1 * np.sign(np.sum(step * toward, axis=1))[:, None]
+            side2 = np.linalg.norm(p2 - p3, axis=1)
+            for target in (length / width, width / length):  # |side m + 2| / |side m + 1|
+                side1 = side2 / target
+                p1 = p2 + side1[:, None] * u1
+                p0 = p3 + side1[:, None] * u1
+                pts = np.stack([p0, p1, p2, p3], axis=1)  # corners m, m + 1, m + 2, m + 3
+                ok = (pts[..., 2] > 0).all(axis=1) & np.isfinite(pts).all(axis=(1, 2))
+                px = pts @ K.T
+                corners = np.roll(px[..., :2] / px[..., 2:], m, axis=1)
+                x, y = corners[..., 0], corners[..., 1]
+                area = 0.5 * np.abs(np.sum(x * np.roll(y, -1, axis=1) - np.roll(x, -1, axis=1) * y, axis=1))
+                qx, qy = quads[..., 0], quads[..., 1]
+                quad_area = 0.5 * np.abs(np.sum(qx * np.roll(qy, -1, axis=1) - np.roll(qx, -1, axis=1) * qy, axis=1))
+                ok &= (area >= 0.98 * quad_area) & (area <= MAX_HIDDEN_AREA_RATIO * region_area)
+                ok &= _inside_many(corners, h, w)
+                out.append(corners[ok])
+    completed = _canonical_many(np.concatenate(out))
+    return completed[np.isfinite(completed).all(axis=(1, 2))]
 
 
-def _hull_quad(hull: np.ndarray) -> np.ndarray | None:
-    """(4, 2) corners of a convex polygon that is a quadrilateral with at most a few corners cut off."""
-    perimeter = cv2.arcLength(hull.astype(np.float32), True)
-    poly = cv2.approxPolyDP(hull.astype(np.float32), 0.02 * perimeter, True).reshape(-1, 2).astype(np.float64)
-    if len(poly) < 4 or len(poly) > 8:
-        return None
-    if len(poly) > 4:  # corners cut off (by the foot, by a shadow): keep the four longest sides and extend them
-        lengths = np.linalg.norm(np.roll(poly, -1, axis=0) - poly, axis=1)
-        keep = np.sort(np.argsort(lengths)[-4:])
-        lines = [(poly[i], poly[(i + 1) % len(poly)]) for i in keep]
-        corners = []
-        for k in range(4):
-            c = _intersect_segments(lines[k - 1], lines[k])
-            if c is None:
-                return None
-            corners.append(c)
-        quad = np.array(corners)
-        area = abs(_signed_area(quad))
-        hull_area = cv2.contourArea(hull.astype(np.float32))
-        if not hull_area <= area * 1.02 or area > 1.5 * hull_area:
-            return None
-        return quad
-    return poly
+def _simplify(hull: np.ndarray) -> list[np.ndarray]:
+    """A convex hull simplified to 4..MAX_HULL_SIDES vertices (n, 2), finely and coarsely: a coarse outline may
+    cut across the corner the foot hides, a fine one keeps it as a short side that the four long ones skip."""
+    closed = hull.astype(np.float32)
+    perimeter = cv2.arcLength(closed, True)
+    out: list[np.ndarray] = []
+    for eps in (0.01, 0.025, 0.05):
+        poly = cv2.approxPolyDP(closed, eps * perimeter, True).reshape(-1, 2).astype(np.float64)
+        if 4 <= len(poly) <= MAX_HULL_SIDES and not any(len(p) == len(poly) for p in out):
+            out.append(poly)
+    return out
 
 
-def _intersect_segments(a: tuple[np.ndarray, np.ndarray], b: tuple[np.ndarray, np.ndarray]) -> np.ndarray | None:
-    """Intersection (2,) of the infinite lines through two segments; None when nearly parallel."""
-    d1, d2 = a[1] - a[0], b[1] - b[0]
-    den = d1[0] * d2[1] - d1[1] * d2[0]
-    if abs(den) < 1e-6 * np.linalg.norm(d1) * np.linalg.norm(d2) + 1e-12:
-        return None
-    r = b[0] - a[0]
-    s = (r[0] * d2[1] - r[1] * d2[0]) / den
-    return a[0] + s * d1
+def _polygon_quads(polygons: list[tuple]) -> tuple[np.ndarray, np.ndarray]:
+    """Quadrilaterals (M, 4, 2) a convex polygon may be with some corners cut off (by the foot, a shadow), and
+    the index (M,) of the polygon of each: every four of its sides, extended, that enclose it without adding more
+    than MAX_HIDDEN_AREA_RATIO. Corner k = side k - 1 x side k, in homogeneous coordinates."""
+    quads, sources = [], []
+    by_sides: dict[int, list[int]] = {}
+    for i, (poly, *_) in enumerate(polygons):
+        by_sides.setdefault(len(poly), []).append(i)
+    for n, members in by_sides.items():
+        verts = np.stack([polygons[i][0] for i in members])  # (P, n, 2)
+        hom = np.concatenate([verts, np.ones(verts.shape[:2] + (1,))], axis=2)
+        lines = np.cross(hom, np.roll(hom, -1, axis=1))  # (P, n, 3): side i from vertex i to i + 1
+        chosen = lines[:, _COMBINATIONS[n]]  # (P, C, 4, 3)
+        corners = np.cross(np.roll(chosen, 1, axis=2), chosen)  # (P, C, 4, 3)
+        weight = corners[..., 2:]
+        ok = (np.abs(weight) > 1e-9 * np.linalg.norm(corners[..., :2], axis=-1, keepdims=True)).all(axis=(2, 3))
+        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+            xy = corners[..., :2] / weight
+            x, y = xy[..., 0], xy[..., 1]
+            area = 0.5 * np.abs(np.sum(x * np.roll(y, -1, axis=2) - np.roll(x, -1, axis=2) * y, axis=2))  # (P, C)
+            poly_area = np.array([polygons[i][1] for i in members])[:, None]
+            # the quad holds the polygon (its corners only cut off), and the cut-off part is not most of it
+            ok &= (poly_area <= area * 1.02) & (area <= MAX_HIDDEN_AREA_RATIO * poly_area)
+        p_idx, c_idx = np.nonzero(ok)
+        quads.append(xy[p_idx, c_idx])
+        sources.append(np.asarray(members)[p_idx])
+    return np.concatenate(quads), np.concatenate(sources)
+
+
+def _inside(quad: np.ndarray, h: int, w: int, margin: float = BORDER_MARGIN_PX) -> bool:
+    """All corners of a (4, 2) quad finite and at least ``margin`` px inside the image."""
+    return bool(_inside_many(quad[None], h, w, margin)[0])
+
+
+def _inside_many(quads: np.ndarray, h: int, w: int, margin: float = BORDER_MARGIN_PX) -> np.ndarray:
+    """(M,) bool: all corners of each (M, 4, 2) quad at least ``margin`` px inside the image (NaN: not)."""
+    m = margin
+    with np.errstate(invalid="ignore"):
+        x, y = quads[..., 0], quads[..., 1]
+        return ((x >= m) & (y >= m) & (x <= w - 1 - m) & (y <= h - 1 - m)).all(axis=1)
 
 
 def _fit_sides_to_points(quad: np.ndarray, points: np.ndarray) -> np.ndarray | None:
@@ -414,19 +545,15 @@ def _fit_sides_to_points(quad: np.ndarray, points: np.ndarray) -> np.ndarray | N
     lines = []
     for i in range(4):
         p, q = quad[i], quad[(i + 1) % 4]
-        d = q - p
-        length = float(np.linalg.norm(d))
+        length = float(np.linalg.norm(q - p))
         if length < MIN_SIDE_PX:
             return None
-        t = d / length
+        t = (q - p) / length
         n = np.array([-t[1], t[0]])
         rel = points - p
         along, across = rel @ t, rel @ n
-        near = (
-            (np.abs(across) <= max(2.0, 0.03 * length))
-            & (along > END_SKIP * length)
-            & (along < (1 - END_SKIP) * length)
-        )
+        near = np.abs(across) <= max(2.0, 0.03 * length)
+        near &= (along > END_SKIP * length) & (along < (1 - END_SKIP) * length)
         if near.sum() < 5:
             lines.append((p, t))
             continue
@@ -435,12 +562,20 @@ def _fit_sides_to_points(quad: np.ndarray, points: np.ndarray) -> np.ndarray | N
     return _corners_from_lines(lines)
 
 
+def _intersect(p1: np.ndarray, d1: np.ndarray, p2: np.ndarray, d2: np.ndarray) -> np.ndarray | None:
+    """Intersection (2,) of the lines p1 + s d1 and p2 + s d2; None when nearly parallel."""
+    den = d1[0] * d2[1] - d1[1] * d2[0]
+    if abs(den) < 1e-6 * np.linalg.norm(d1) * np.linalg.norm(d2) + 1e-12:
+        return None
+    r = p2 - p1
+    return p1 + (r[0] * d2[1] - r[1] * d2[0]) / den * d1
+
+
 def _corners_from_lines(lines: list[tuple[np.ndarray, np.ndarray]]) -> np.ndarray | None:
-    """Corner i = intersection of line i - 1 and line i (lines given as point, unit direction)."""
+    """(4, 2) corners: corner i = intersection of line i - 1 and line i (lines given as point, direction)."""
     corners = []
     for i in range(4):
-        (p1, d1), (p2, d2) = lines[i - 1], lines[i]
-        c = _intersect_segments((p1, p1 + d1), (p2, p2 + d2))
+        c = _intersect(*lines[i - 1], *lines[i])
         if c is None:
             return None
         corners.append(c)
@@ -449,47 +584,78 @@ def _corners_from_lines(lines: list[tuple[np.ndarray, np.ndarray]]) -> np.ndarra
 
 def _signed_area(quad: np.ndarray) -> float:
     """Shoelace area in image coordinates (x right, y down): negative when the corners run counter-clockwise as
-    seen on the screen, which is how a floor rectangle in local order appears when seen from above."""
+    seen on the screen, which is how a floor rectangle in local order appears seen from above."""
     x, y = quad[:, 0], quad[:, 1]
     return 0.5 * float(np.sum(x * np.roll(y, -1) - np.roll(x, -1) * y))
 
 
 def _canonical(quad: np.ndarray) -> np.ndarray | None:
     """Convex quad with negative signed area, starting at its top-left-most corner; None if not convex."""
-    if _signed_area(quad) > 0:
-        quad = quad[::-1]
-    edges = np.roll(quad, -1, axis=0) - quad
-    cross = edges[:, 0] * np.roll(edges, -1, axis=0)[:, 1] - edges[:, 1] * np.roll(edges, -1, axis=0)[:, 0]
-    if not np.all(cross < 0):
-        return None
-    start = int(np.argmin(quad.sum(axis=1)))
-    return np.roll(quad, -start, axis=0)
+    out = _canonical_many(quad[None])[0]
+    return None if np.isnan(out).any() else out
+
+
+def _canonical_many(quads: np.ndarray) -> np.ndarray:
+    """``_canonical`` of (M, 4, 2) quads; NaN rows where not convex."""
+    x, y = quads[..., 0], quads[..., 1]
+    area = np.sum(x * np.roll(y, -1, axis=1) - np.roll(x, -1, axis=1) * y, axis=1)
+    quads = np.where((area > 0)[:, None, None], quads[:, ::-1], quads)
+    edges = np.roll(quads, -1, axis=1) - quads
+    nxt = np.roll(edges, -1, axis=1)
+    convex = (edges[..., 0] * nxt[..., 1] - edges[..., 1] * nxt[..., 0] < 0).all(axis=1)
+    start = np.argmin(quads.sum(axis=2), axis=1)
+    order = (start[:, None] + np.arange(4)[None]) % 4
+    quads = np.take_along_axis(quads, order[..., None], axis=1)
+    quads[~convex] = np.nan
+    return quads
 
 
 # --- metric tests -------------------------------------------------------------------------------------------
 
 
-def _parallelogram(quad: np.ndarray, K: np.ndarray) -> tuple[float, float, np.ndarray] | None:
-    """Metric shape of the plane parallelogram whose image is ``quad``: (side ratio |P1-P0| / |P3-P0|, angle at
-    P0 in degrees, (4,) depths up to a common scale); None if a corner would lie behind the camera.
+def _parallelogram_many(quads: np.ndarray, K: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Metric shape of the plane parallelograms whose images are the (M, 4, 2) quads: side ratio
+    |P1 - P0| / |P3 - P0| (M,), angle at P0 in degrees (M,), depths (M, 4) up to a common scale, and whether the
+    solution exists with every corner in front of the camera (M,).
 
     With rays r_i = K^-1 (u_i, v_i, 1), depths l_i with l0 r0 + l2 r2 = l1 r1 + l3 r3 (the diagonals bisect each
     other) are unique up to scale: a rectangle's image gives a right angle and its true side ratio.
     """
-    rays = np.concatenate([quad, np.ones((4, 1))], axis=1) @ np.linalg.inv(K).T
-    a = np.stack([rays[1], -rays[2], rays[3]], axis=1)
-    try:
-        lam = np.linalg.solve(a, rays[0])
-    except np.linalg.LinAlgError:
-        return None
-    depths = np.concatenate([[1.0], lam])
-    if not np.all(depths > 0):
-        return None
-    pts = rays * depths[:, None]
-    side_a, side_b = pts[1] - pts[0], pts[3] - pts[0]
-    na, nb = np.linalg.norm(side_a), np.linalg.norm(side_b)
-    cos = float(side_a @ side_b / (na * nb))
-    return float(na / nb), math.degrees(math.acos(max(-1.0, min(1.0, cos)))), depths
+    rays = np.concatenate([quads, np.ones(quads.shape[:2] + (1,))], axis=2) @ np.linalg.inv(K).T  # (M, 4, 3)
+    a = np.stack([rays[:, 1], -rays[:, 2], rays[:, 3]], axis=2)  # (M, 3, 3): columns r1, -r2, r3
+    good = np.abs(np.linalg.det(a)) > 1e-12
+    a[~good] = np.eye(3)
+    lam = np.linalg.solve(a, rays[:, 0][..., None])[..., 0]  # (M, 3)
+    depths = np.concatenate([np.ones((len(quads), 1)), lam], axis=1)
+    good &= (lam > 0).all(axis=1)
+    pts = rays * depths[..., None]
+    side_a, side_b = pts[:, 1] - pts[:, 0], pts[:, 3] - pts[:, 0]
+    na, nb = np.linalg.norm(side_a, axis=1), np.linalg.norm(side_b, axis=1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        cos = np.clip(np.sum(side_a * side_b, axis=1) / (na * nb), -1.0, 1.0)
+        return na / nb, np.degrees(np.arccos(cos)), depths, good & np.isfinite(cos)
+
+
+def _parallelogram(quad: np.ndarray, K: np.ndarray) -> tuple[float, float, np.ndarray] | None:
+    """``_parallelogram_many`` of one (4, 2) quad: (side ratio, angle in degrees, (4,) depths) or None."""
+    ratio, angle, depths, good = _parallelogram_many(quad[None], K)
+    return (float(ratio[0]), float(angle[0]), depths[0]) if good[0] else None
+
+
+def _classify_many(quads: np.ndarray, K: np.ndarray, kinds: list[str], loose: float) -> np.ndarray:
+    """(M,) bool: the metric test (with tolerances ``loose`` times wider) names each (M, 4, 2) quad one of
+    ``kinds``."""
+    if len(quads) == 0:
+        return np.zeros(0, dtype=bool)
+    ratio, angle, _, good = _parallelogram_many(quads, K)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        log_ratio = np.abs(np.log(ratio))
+    good &= np.abs(angle - 90.0) <= ANGLE_TOLERANCE_DEG * loose
+    fits = np.zeros(len(quads), dtype=bool)
+    for kind in kinds:
+        length, width = SIZES_MM[kind]
+        fits |= np.abs(log_ratio - math.log(length / width)) <= ASPECT_TOLERANCE * loose
+    return good & fits
 
 
 def _classify(
@@ -524,28 +690,16 @@ def _classify(
 
 
 @dataclass(frozen=True)
-class _Line:
-    """A fitted side: centroid (2,), unit direction (2,), SD of the offset at the centroid (px) and of the angle
-    (rad), the fraction of the side's samples that support it, the residual SD (px), the colour contrast (3,)."""
-
-    point: np.ndarray
-    direction: np.ndarray
-    offset_sd: float
-    angle_sd: float
-    support: float
-    residual_sd: float
-    contrast: np.ndarray
-
-
-@dataclass(frozen=True)
 class _Profiles:
-    """Edges found across a line at positions along it: ``points`` (S, 2) px, ``found`` (S,) bool, the colour
-    ``contrast`` (3,) across the line (+n side minus -n side), and ``inner``/``outer`` (3,) median colours read
-    on the side where the quad's centre lies and on the other."""
+    """Edges across a line at positions along it: ``points`` (S, 2) px, ``found`` (S,) bool, ``min_step`` the
+    smallest colour change across the line that counted, the colours ``ends`` (S, 2, 3) read at both ends of
+    each profile (-n, +n), and ``usable`` (S,) bool: not excluded by the caller's mask."""
 
     points: np.ndarray
     found: np.ndarray
-    contrast: np.ndarray
+    min_step: float
+    ends: np.ndarray
+    usable: np.ndarray
 
 
 def _profiles(
@@ -555,13 +709,15 @@ def _profiles(
     along: np.ndarray,
     radius: float,
     valid: np.ndarray | None,
-    contrast: np.ndarray | None = None,
+    min_step: float | None = None,
 ) -> _Profiles | None:
     """Sub-pixel edges across the line p -> q at positions ``along`` (S,) px from p (any, also beyond q).
 
-    At each position the blurred image is sampled across the line every 0.25 px, projected on the colour
-    contrast (given, or the median difference across the line), differentiated, and the strongest edge of that
-    polarity within ``radius`` located by a parabola through the peak. None when there is no contrast.
+    At each position the blurred image is sampled across the line every 0.25 px; the strongest colour gradient
+    (Euclidean norm over the channels, so any colours and either polarity) within ``radius`` is located by a
+    parabola through its peak. It counts as an edge where the colours beyond both ends of the profile differ by
+    ``min_step`` at least (given, or half the typical change across the line) and the peak is that of a step,
+    not of a thin line. None when nothing changes across the line.
     """
     d = q - p
     t = d / np.linalg.norm(d)
@@ -575,89 +731,101 @@ def _profiles(
     map_y = np.ascontiguousarray(pts[..., 1], dtype=np.float32)
     # bicubic: a bilinear profile's derivative is constant between pixel centres and pulls the peak onto them
     values = cv2.remap(blurred, map_x, map_y, cv2.INTER_CUBIC, borderMode=cv2.BORDER_REPLICATE)  # (S, O, 3)
-    steps = values[:, -1] - values[:, 0]  # (S, 3)
-    if contrast is None:
-        size = np.linalg.norm(steps, axis=1)
-        # where the foot covers the side the colour change is another one: take the median of the larger half
-        contrast = np.median(steps[size >= np.median(size)], axis=0)
-    norm = float(np.linalg.norm(contrast))
-    if norm < MIN_CONTRAST:
+    size = np.linalg.norm(values[:, -1] - values[:, 0], axis=1)  # (S,) colour change across the line
+    if min_step is None:
+        # where the foot covers the side the change is another one: half the median of the larger half
+        min_step = max(MIN_CONTRAST, 0.5 * float(np.median(size[size >= np.median(size)])))
+    if size.max() < min_step:
         return None
-    profile = values @ (contrast / norm)  # (S, O): rises across the line along +n
-    deriv = np.gradient(profile, step, axis=1)
+    grad = np.linalg.norm(np.gradient(values, step, axis=1), axis=2)  # (S, O)
     window = np.flatnonzero(np.abs(across) <= radius + 1e-9)
-    k = window[0] + np.argmax(deriv[:, window], axis=1)
+    k = window[0] + np.argmax(grad[:, window], axis=1)
     rows = np.arange(len(along))
-    y0, y1, y2 = deriv[rows, k - 1], deriv[rows, k], deriv[rows, k + 1]
+    y0, y1, y2 = grad[rows, k - 1], grad[rows, k], grad[rows, k + 1]
     den = y0 - 2 * y1 + y2
     with np.errstate(divide="ignore", invalid="ignore"):
         frac = np.where(den < 0, 0.5 * (y0 - y2) / den, 0.0)
     offset = across[k] + np.clip(frac, -0.5, 0.5) * step
-    # an edge: a peak inside the window (not at its end), a step of at least half the contrast, a sharp peak
-    found = (k > window[0]) & (k < window[-1]) & (profile[:, -1] - profile[:, 0] > 0.5 * norm)
-    found &= deriv[rows, k] > 0.5 * norm / (BLUR_SIGMA_PX * math.sqrt(2 * math.pi)) / 2
+    # an edge: a peak inside the window (not at its end), a change across, and a peak no lower than a quarter of
+    # a sharp step's (blurred by BLUR_SIGMA_PX; lenses blur more)
+    found = (k > window[0]) & (k < window[-1]) & (size >= min_step)
+    found &= grad[rows, k] > 0.25 * size / (BLUR_SIGMA_PX * math.sqrt(2 * math.pi))
     points = p + along[:, None] * t + offset[:, None] * n
+    usable = np.ones(len(along), dtype=bool)
     if valid is not None:
         h, w = valid.shape
         ix = np.clip(np.rint(points[:, 0]).astype(int), 0, w - 1)
         iy = np.clip(np.rint(points[:, 1]).astype(int), 0, h - 1)
-        found &= valid[iy, ix]
-    return _Profiles(points, found, contrast)
+        usable = valid[iy, ix]
+        found &= usable
+    return _Profiles(points, found, min_step, values[:, [0, -1]], usable)
+
+
+@dataclass(frozen=True)
+class _SideEdges:
+    """Edge points (M, 2) px found along a side, the number of positions sampled, how many of them contradict
+    the side, the smallest colour change across it that counted, and the typical colours (3,) each beyond the
+    found edges on the -n (``near``) and the +n (``far``) side (n: the side's direction turned +90 deg)."""
+
+    points: np.ndarray
+    sampled: int
+    contradicted: int
+    min_step: float
+    near: np.ndarray
+    far: np.ndarray
 
 
 def _side_edge_points(
     blurred: np.ndarray, p: np.ndarray, q: np.ndarray, radius: float, valid: np.ndarray | None
-) -> tuple[np.ndarray, int, np.ndarray] | None:
-    """Edge points (M, 2) px along the side p -> q (1 px apart, END_SKIP of it skipped at both ends), the number
-    of positions sampled, and the side's colour contrast (3,)."""
+) -> _SideEdges | None:
+    """Edges along the side p -> q, 1 px apart, END_SKIP of it skipped at both ends.
+
+    A position without the edge either shows something else across the side (the foot, its shadow: occluded)
+    or shows the colour of one side of the edge on both sides of the line: the edge is plainly not there. Only
+    the latter counts against the side (``_Line.support``).
+    """
     length = float(np.linalg.norm(q - p))
     skip = END_SKIP * length + 1.0
     along = np.arange(skip, length - skip + 1e-9, 1.0)
     if len(along) < 6:
         return None
     prof = _profiles(blurred, p, q, along, radius, valid)
-    if prof is None:
+    if prof is None or prof.found.sum() < 5:
         return None
-    return prof.points[prof.found], len(along), prof.contrast
+    near, far = np.median(prof.ends[prof.found], axis=0)  # (3,) each: typical colours at -n and +n
+    tol = OCCLUSION_MATCH * float(np.linalg.norm(far - near))
+    a, b = prof.ends[:, 0], prof.ends[:, 1]
+
+    def like(x: np.ndarray, c: np.ndarray) -> np.ndarray:
+        return np.linalg.norm(x - c, axis=1) < tol
+
+    missing = ~prof.found & prof.usable & ((like(a, near) & like(b, near)) | (like(a, far) & like(b, far)))
+    return _SideEdges(prof.points[prof.found], len(along), int(missing.sum()), prof.min_step, near, far)
 
 
-def _continues(blurred: np.ndarray, quad: np.ndarray, contrasts: list[np.ndarray], valid: np.ndarray | None) -> bool:
-    """Whether any side's edge runs on past a corner, in line with it: the quad is then cut out of longer lines
-    (planks, tiles, grout) and is not an object lying on the floor."""
-    for i in range(4):
-        p, q = quad[i], quad[(i + 1) % 4]
-        length = float(np.linalg.norm(q - p))
-        beyond = np.arange(CONTINUATION_SPAN[0] * length + 2.0, CONTINUATION_SPAN[1] * length + 2.0, 1.0)
-        if len(beyond) < 4:
-            continue
-        for along in (length + beyond, -beyond):
-            prof = _profiles(blurred, p, q, along, 1.5, valid, contrasts[i])
-            h, w = blurred.shape[:2]
-            inside = (prof.points[:, 0] > 1) & (prof.points[:, 0] < w - 2) & (prof.points[:, 1] > 1)
-            inside &= prof.points[:, 1] < h - 2
-            if inside.sum() >= 4 and prof.found[inside].mean() > MAX_CONTINUATION:
-                return True
-    return False
+@dataclass(frozen=True)
+class _Line:
+    """A fitted side: centroid (2,), unit direction (2,), SD of the offset at the centroid (px) and of the angle
+    (rad); ``support``: the fraction of the positions along it that show the edge among those that show the
+    edge or plainly its absence (positions where something covers the side do not count), ``coverage``: among
+    all; the residual SD (px), the smallest colour change across it that counted, and the typical colours (3,)
+    beyond its edge on either side (``_SideEdges``)."""
+
+    point: np.ndarray
+    direction: np.ndarray
+    offset_sd: float
+    angle_sd: float
+    support: float
+    coverage: float
+    residual_sd: float
+    min_step: float
+    near: np.ndarray
+    far: np.ndarray
 
 
-def _inner_colour(blurred: np.ndarray, quad: np.ndarray) -> np.ndarray:
-    """(3,) median colour along a band just inside the quad's sides (a few px in, away from the edge blur)."""
-    centre = quad.mean(axis=0)
-    inset = (
-        quad + (centre - quad) * np.minimum(1.0, (PLATEAU_PX + 2.0) / np.linalg.norm(centre - quad, axis=1))[:, None]
-    )
-    samples = []
-    for i in range(4):
-        p, q = inset[i], inset[(i + 1) % 4]
-        u = np.linspace(END_SKIP, 1 - END_SKIP, 32)[:, None]
-        samples.append(p + u * (q - p))
-    pts = np.concatenate(samples).astype(np.float32)
-    values = cv2.remap(blurred, pts[:, :1], pts[:, 1:], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-    return np.median(values.reshape(-1, 3), axis=0)
-
-
-def _fit_line(points: np.ndarray, total: int, contrast: np.ndarray) -> _Line | None:
+def _fit_line(edges: _SideEdges) -> _Line | None:
     """Robust total-least-squares line through edge points: Huber fit, outliers beyond 3 robust SD dropped, refit."""
+    points = edges.points
     if len(points) < 5:
         return None
     vx, vy, x0, y0 = cv2.fitLine(points.astype(np.float32), cv2.DIST_HUBER, 0, 0.01, 0.01).ravel()
@@ -665,8 +833,7 @@ def _fit_line(points: np.ndarray, total: int, contrast: np.ndarray) -> _Line | N
     normal = np.array([-direction[1], direction[0]])
     resid = (points - np.array([x0, y0])) @ normal
     mad = 1.4826 * float(np.median(np.abs(resid - np.median(resid))))
-    keep = np.abs(resid - np.median(resid)) <= max(3.0 * mad, 0.3)
-    pts = points[keep]
+    pts = points[np.abs(resid - np.median(resid)) <= max(3.0 * mad, 0.3)]
     if len(pts) < 5:
         return None
     centroid = pts.mean(axis=0)
@@ -681,31 +848,42 @@ def _fit_line(points: np.ndarray, total: int, contrast: np.ndarray) -> _Line | N
         direction=direction,
         offset_sd=sd / math.sqrt(len(pts)),
         angle_sd=sd / math.sqrt(float(np.sum(along**2))),
-        support=len(pts) / total,
+        support=len(pts) / (len(pts) + edges.contradicted),
+        coverage=len(pts) / edges.sampled,
         residual_sd=sd,
-        contrast=contrast,
+        min_step=edges.min_step,
+        near=edges.near,
+        far=edges.far,
     )
+
+
+def _fit_sides(
+    quad: np.ndarray, blurred: np.ndarray, valid: np.ndarray | None, radius: float
+) -> list[_Line | None] | None:
+    """The line fitted to the image's edges along each side of a quad (None where none), or None if a side is
+    too short (line i runs from corner i to corner i + 1)."""
+    lines: list[_Line | None] = []
+    for i in range(4):
+        p, q = quad[i], quad[(i + 1) % 4]
+        side = float(np.linalg.norm(q - p))
+        if side < MIN_SIDE_PX:
+            return None
+        edges = _side_edge_points(blurred, p, q, min(radius, 0.15 * side), valid)
+        lines.append(None if edges is None else _fit_line(edges))
+    return lines
 
 
 def _refine_sides(
     quad: np.ndarray, blurred: np.ndarray, valid: np.ndarray | None, radii: tuple[float, ...] = (3.0, 1.5)
 ) -> tuple[np.ndarray, list[_Line]] | None:
-    """Sub-pixel corners of a quad (4, 2) px from the image's edges along its sides, and the four fitted lines."""
+    """Sub-pixel corners of a quad (4, 2) px from the image's edges along its sides, and the four fitted lines
+    (line i runs from corner i to corner i + 1)."""
     lines: list[_Line] = []
     for radius in radii:
-        lines = []
-        for i in range(4):
-            p, q = quad[i], quad[(i + 1) % 4]
-            side = float(np.linalg.norm(q - p))
-            if side < MIN_SIDE_PX:
-                return None
-            found = _side_edge_points(blurred, p, q, min(radius, 0.15 * side), valid)
-            if found is None:
-                return None
-            line = _fit_line(found[0], found[1], found[2])
-            if line is None:
-                return None
-            lines.append(line)
+        fitted = _fit_sides(quad, blurred, valid, radius)
+        if fitted is None or any(ln is None for ln in fitted):
+            return None
+        lines = fitted
         new = _corners_from_lines([(ln.point, ln.direction) for ln in lines])
         if new is None or np.max(np.linalg.norm(new - quad, axis=1)) > 3.0 * radius + 2.0:
             return None
@@ -713,10 +891,101 @@ def _refine_sides(
     return quad, lines
 
 
+def _complete_sheet(quad: np.ndarray, blurred: np.ndarray, K: np.ndarray, valid: np.ndarray | None) -> list:
+    """Quads (4, 2) px for a sheet of which three sides show and the fourth is hidden or cut short (the foot over
+    a corner): the two corners on the three sides' lines that are not their intersections are placed so that
+    the four make a rectangle of A4's proportions (metric, with K), for either side being the long one."""
+    from scipy.optimize import least_squares
+
+    lines = _fit_sides(quad, blurred, valid, 3.0)
+    if lines is None:
+        return []
+    good = [
+        ln is not None and ln.coverage >= COMPLETION_MIN_COVERAGE and ln.support >= COMPLETION_MIN_SUPPORT
+        for ln in lines
+    ]
+    if sum(good) != 3:
+        return []
+    m = good.index(False)  # the missing side, from corner m to corner m + 1
+    side = {k: lines[(m + k) % 4] for k in (1, 2, 3)}
+    residuals = [ln.residual_sd for ln in side.values()]
+    if max(residuals) > max(MAX_RESIDUAL_RATIO * float(np.median(residuals)), STRAIGHT_EDGE_PX):
+        return []
+    c2 = _intersect(side[1].point, side[1].direction, side[2].point, side[2].direction)  # corner m + 2
+    c3 = _intersect(side[2].point, side[2].direction, side[3].point, side[3].direction)  # corner m + 3
+    if c2 is None or c3 is None:
+        return []
+    # corner m + 1 = c2 + a d1 on side m + 1, corner m = c3 + b d3 on side m + 3, towards the rough quad's corners
+    d1 = side[1].direction * np.sign(side[1].direction @ (quad[(m + 1) % 4] - c2) or 1.0)
+    d3 = side[3].direction * np.sign(side[3].direction @ (quad[m] - c3) or 1.0)
+    start = np.array([max(float(d1 @ (quad[(m + 1) % 4] - c2)), 1.0), max(float(d3 @ (quad[m] - c3)), 1.0)])
+    length, width = SIZES_MM["a4"]
+    out = []
+    for target in (length / width, width / length):  # metric |side m + 2| / |side m + 1|
+
+        def misfit(ab: np.ndarray, target: float = target) -> np.ndarray:
+            corners = np.array([c3 + ab[1] * d3, c2 + ab[0] * d1, c2, c3])  # corners m, m + 1, m + 2, m + 3
+            shape = _parallelogram(corners, K)
+            if shape is None:
+                return np.array([1.0, 1.0])
+            ratio, angle, _ = shape  # |m -> m + 1| / |m -> m + 3| = |side m + 2| / |side m + 1|
+            return np.array([math.log(ratio / target), math.radians(angle - 90.0)])
+
+        fit = least_squares(misfit, start, x_scale=np.maximum(start, 10.0), max_nfev=60)
+        a, b = fit.x
+        if min(a, b) < MIN_SIDE_PX or np.abs(fit.fun).max() > 1e-3:
+            continue
+        corners = np.array([c3 + b * d3, c2 + a * d1, c2, c3])
+        out.append(np.roll(corners, m, axis=0))  # back to the rough quad's corner numbering
+    return out
+
+
+def _continues(blurred: np.ndarray, quad: np.ndarray, lines: list[_Line], valid: np.ndarray | None) -> bool:
+    """Whether any side's edge runs on past a corner, in line with it: the quad is then cut out of longer lines
+    (planks, tiles, a marker's grid) and is not an object lying on the floor."""
+    h, w = blurred.shape[:2]
+    for i in range(4):
+        p, q = quad[i], quad[(i + 1) % 4]
+        length = float(np.linalg.norm(q - p))
+        beyond = np.arange(CONTINUATION_SPAN[0] * length + 2.0, CONTINUATION_SPAN[1] * length + 2.0, 1.0)
+        if len(beyond) < 4:
+            continue
+        for along in (length + beyond, -beyond):
+            # any edge (of any colours: a marker's cells change polarity along a grid line), but only in line with
+            # the side: a line that merely crosses near the corner leaves the narrow window at once
+            prof = _profiles(blurred, p, q, along, CONTINUATION_RADIUS_PX, valid, lines[i].min_step)
+            if prof is None:
+                continue
+            x, y = prof.points[:, 0], prof.points[:, 1]
+            inside = (x > 1) & (x < w - 2) & (y > 1) & (y < h - 2)
+            if inside.sum() >= 4 and prof.found[inside].mean() > MAX_CONTINUATION:
+                return True
+    return False
+
+
+def _is_paper(quad: np.ndarray, lines: list[_Line]) -> bool:
+    """A white sheet: little colour inside, and brighter inside than outside along at least three sides (the
+    colours read beyond the edges where they were found, so that the foot over the sheet does not count)."""
+    centre = quad.mean(axis=0)
+    inner, outer = [], []
+    for i, ln in enumerate(lines):
+        t = quad[(i + 1) % 4] - quad[i]  # the side was sampled from corner i to corner i + 1
+        n = np.array([-t[1], t[0]])
+        far_inside = (centre - quad[i]) @ n > 0
+        inner.append(ln.far if far_inside else ln.near)
+        outer.append(ln.near if far_inside else ln.far)
+    inner, outer = np.array(inner), np.array(outer)
+    paper = np.median(inner, axis=0)
+    if (paper.max() - paper.min()) / max(float(paper.max()), 1e-6) > PAPER_MAX_SATURATION:
+        return False
+    return int(np.sum(inner.mean(axis=1) > outer.mean(axis=1) + MIN_CONTRAST / 2)) >= 3
+
+
 # --- pose and uncertainty -----------------------------------------------------------------------------------
 
 
 def _object_points(kind: str) -> np.ndarray:
+    """(4, 3) corners of the object's rectangle in the floor frame (mm), in local order."""
     length, width = SIZES_MM[kind]
     return np.array([[0, 0, 0], [length, 0, 0], [length, width, 0], [0, width, 0]], dtype=np.float64)
 
@@ -730,7 +999,7 @@ def _pose(corners: np.ndarray, kind: str, K: np.ndarray) -> tuple[np.ndarray, fl
     rot, _ = cv2.Rodrigues(rvec)
     pose = np.eye(4)
     pose[:3, :3], pose[:3, 3] = rot, tvec.ravel()
-    # the floor's z must face the camera: -n . t > 0 (the corners' order guarantees it unless the fit is wrong)
+    # the floor's z must face the camera (the corners' order sees to it) and every corner lie in front of it
     if -(rot[:, 2] @ pose[:3, 3]) <= 0 or np.any((obj @ rot.T + pose[:3, 3])[:, 2] <= 0):
         return None
     proj, _ = cv2.projectPoints(obj, rvec, tvec, K, None)
@@ -739,13 +1008,13 @@ def _pose(corners: np.ndarray, kind: str, K: np.ndarray) -> tuple[np.ndarray, fl
 
 
 def _distance(corners: np.ndarray, kind: str, K: np.ndarray) -> float:
-    """Camera-to-object-centre distance (mm) implied by the corners."""
+    """Camera-to-object-centre distance (mm) implied by the corners (NaN when there is no pose)."""
     found = _pose(corners, kind, K)
     if found is None:
         return float("nan")
     pose = found[0]
     length, width = SIZES_MM[kind]
-    return float(np.linalg.norm(pose[:3, :3] @ [length / 2, width / 2, 0] + pose[:3, 3]))
+    return float(np.linalg.norm(pose[:3, :3] @ [length / 2, width / 2, 0.0] + pose[:3, 3]))
 
 
 def _perturbed_corners(lines: list[_Line]) -> list[np.ndarray]:
@@ -789,27 +1058,52 @@ def _finish(
     """Refine a rough quad, name it, test it strictly and solve the plane: (score, object) or None.
 
     A marker's quad comes in its local order (``kinds == ["marker"]``); a sheet's or card's is put in local
-    order once its sides are known.
+    order once its sides are known. A sheet whose fourth side the rough quad misses (the foot hides a corner,
+    the region's outline cuts across it) is completed from its other three (``_complete_sheet``) and tried again.
     """
+    result = _finish_quad(quad, kinds, blurred, K, valid, mirrored)
+    if result is None and "a4" in kinds:
+        for completed in _complete_sheet(quad, blurred, K, valid):
+            result = _finish_quad(completed, ["a4"], blurred, K, valid)
+            if result is not None:
+                break
+    return result
+
+
+def _finish_quad(
+    quad: np.ndarray,
+    kinds: list[str],
+    blurred: np.ndarray,
+    K: np.ndarray,
+    valid: np.ndarray | None,
+    mirrored: bool = False,
+) -> tuple[float, ReferenceObject] | None:
+    """``_finish`` without the completion of a sheet."""
     h, w = blurred.shape[:2]
     refined = _refine_sides(quad, blurred, valid)
     if refined is None:
         return None
     corners, lines = refined
-    if not _inside(corners, h, w):
+    # a marker is read by its pattern, not cut out by the border: it only has to lie in the image
+    if not _inside(corners, h, w, margin=0.0 if kinds == ["marker"] else BORDER_MARGIN_PX):
         return None
     if min(np.linalg.norm(np.roll(corners, -1, axis=0) - corners, axis=1)) < MIN_SIDE_PX:
         return None
     supports = np.array([ln.support for ln in lines])
+    coverage = np.array([ln.coverage for ln in lines])
+    residuals = np.array([ln.residual_sd for ln in lines])
     if supports.min() < MIN_SIDE_SUPPORT or supports.mean() < MIN_MEAN_SUPPORT:
+        return None
+    if coverage.min() < MIN_COVERAGE["a4"][0] or coverage.mean() < MIN_COVERAGE["a4"][1]:
+        return None
+    if residuals.max() > max(MAX_RESIDUAL_RATIO * float(np.median(residuals)), STRAIGHT_EDGE_PX):
         return None
     shape = _parallelogram(corners, K)
     if shape is None:
         return None
     perturbed = _perturbed_corners(lines)
     ratio_sd, angle_sd = _shape_sd(corners, perturbed, K)
-    # the tolerances widen with the corners' noise (small or oblique objects), never so far that a sheet could
-    # pass for a card: they differ by 0.115 in log ratio
+    # small or oblique objects measure their shape less well: the tolerances widen with the corners' noise
     tol_ratio = min(max(ASPECT_TOLERANCE, 3.0 * ratio_sd), MAX_ASPECT_TOLERANCE)
     tol_angle = min(max(ANGLE_TOLERANCE_DEG, 3.0 * angle_sd), MAX_ANGLE_TOLERANCE_DEG)
     if kinds == ["marker"]:
@@ -817,36 +1111,37 @@ def _finish(
         if abs(math.log(shape[0])) > tol_ratio or abs(shape[1] - 90.0) > tol_angle:
             return None
     else:
+        # named among both kinds, so that a sheet asked for as a card is not one
         found = _classify(corners, K, ["a4", "card"], tol_ratio=tol_ratio, tol_angle=tol_angle)
         if found is None or found[0] not in kinds:
             return None
         kind, start = found
+    if coverage.min() < MIN_COVERAGE[kind][0] or coverage.mean() < MIN_COVERAGE[kind][1]:
+        return None
     if start:
         corners = np.roll(corners, -start, axis=0)
         lines = lines[start:] + lines[:start]
         perturbed = [np.roll(c, -start, axis=0) for c in perturbed]
-    if kind == "a4":
-        paper = _inner_colour(blurred, corners)
-        if (paper.max() - paper.min()) / max(float(paper.max()), 1e-6) > PAPER_MAX_SATURATION:
-            return None
-    if _continues(blurred, corners, [ln.contrast for ln in lines], valid):
+    if kind == "a4" and not _is_paper(corners, lines):
+        return None
+    if _continues(blurred, corners, lines, valid):
         return None
     solved = _pose(corners, kind, K)
     if solved is None:
         return None
     pose, reproj = solved
     length, width = SIZES_MM[kind]
-    distance = float(np.linalg.norm(pose[:3, :3] @ [length / 2, width / 2, 0] + pose[:3, 3]))
+    distance = float(np.linalg.norm(pose[:3, :3] @ [length / 2, width / 2, 0.0] + pose[:3, 3]))
     if not DISTANCE_RANGE_MM[0] <= distance <= DISTANCE_RANGE_MM[1]:
         return None
     fit_sd = math.sqrt(sum((_distance(c, kind, K) - distance) ** 2 for c in perturbed)) / distance
     if not fit_sd <= MAX_SCALE_REL_SD:
         return None
-    # a corner's SD: the two lines' offsets there (line offset SD at the centroid plus the angle's lever)
+    # a corner's SD: the two lines' offsets there (the line's offset SD at its centroid plus the angle's lever)
     corner_var = [
         ln.offset_sd**2 + (ln.angle_sd * float(np.linalg.norm(corners[j] - ln.point))) ** 2
         for i, ln in enumerate(lines)
-        for j in (i, (i + 3) % 4)
+        for j in (i, (i + 1) % 4)
     ]
     obj = ReferenceObject(
         kind=kind,
@@ -860,5 +1155,5 @@ def _finish(
         mirrored=mirrored,
     )
     # among candidates of one kind: the best-supported, most precise, then the larger (a sheet, not part of it)
-    score = float(supports.mean()) - 10.0 * fit_sd + 1e-6 * abs(_signed_area(corners))
+    score = float(supports.mean() + coverage.mean()) - 10.0 * fit_sd + 1e-6 * abs(_signed_area(corners))
     return score, obj

@@ -128,7 +128,9 @@ def evaluate_mode(
 
     def renderer(reference: str) -> Renderer:
         if reference not in renderers:
-            renderers[reference] = Renderer(SynthConfig(size=size, reference=reference, views=views))
+            renderers[reference] = Renderer(
+                SynthConfig(size=size, reference=reference, views=views, frame_reference=True)
+            )
         return renderers[reference]
 
     result = ModeResult(mode)

@@ -52,8 +52,8 @@ def main() -> None:
     for k, (name, reference, side, depth) in enumerate(EXAMPLES):
         seed = SEED + k
         # search at a small size (the scene does not depend on it), render the chosen one at full size
-        finder = Renderer(SynthConfig(size=SEARCH_SIZE, reference=reference))
-        full = Renderer(SynthConfig(size=SIZE, reference=reference))
+        finder = Renderer(SynthConfig(size=SEARCH_SIZE, reference=reference, frame_reference=True))
+        full = Renderer(SynthConfig(size=SIZE, reference=reference, frame_reference=True))
         index = 0
         while True:
             if _wanted(finder.render(seed, index), side, SEARCH_SIZE):

@@ -184,6 +184,9 @@ class Renderer:
         size = self.config.size
         k = intrinsics(size, scene.fov_deg)
         lo, hi = geo.foot_vertices.min(axis=0), geo.foot_vertices.max(axis=0)
+        if self.config.frame_reference and scene.reference is not None and scene.view_id < 0:
+            corners = scene.reference.corners()
+            lo, hi = np.minimum(lo, corners.min(axis=0)), np.maximum(hi, corners.max(axis=0))
         centre = (lo + hi) / 2
         radius = float(np.linalg.norm(hi - lo) / 2)
         cam_from_scene = camera_pose(scene, centre, radius)

@@ -65,6 +65,10 @@ class SynthConfig:
     reference_probs: dict[str, float] = field(
         default_factory=lambda: {"none": 0.25, "a4": 0.35, "card": 0.2, "marker": 0.2}
     )
+    frame_reference: bool = False
+    """True: random views frame the foot and the reference object together, like a whole photo taken as the photo
+    guide asks (a reference half out of frame cannot give the scale; ``eval measure``, the bundled examples).
+    False: the foot alone, as the pipeline's crop frames it (training data for the networks that see the crop)."""
 
     def __post_init__(self) -> None:
         if self.size < 16 or self.size > 4096:

@@ -267,6 +267,23 @@ def augment_recon(
     return ReconBatch(rgb, depth, K, turn(batch.vertices), turn(batch.joints3d))
 
 
+MIN_DEPTH_PIXELS = 64
+"""A training sample whose (augmented) depth map has fewer valid pixels than this is left out of its batch: a
+zoom or a dropout blob can empty a map that had only a few foot pixels, and such a map cannot give the scale."""
+
+
+def keep_with_depth(batch: ReconBatch) -> ReconBatch:
+    """The samples of ``batch`` with at least ``MIN_DEPTH_PIXELS`` valid depth pixels (at least one sample kept:
+    the one with the most, so that a batch is never empty)."""
+    counts = (batch.depth > 0).flatten(1).sum(1)
+    keep = counts >= MIN_DEPTH_PIXELS
+    if bool(keep.all()):
+        return batch
+    if not bool(keep.any()):
+        keep = counts == counts.max()
+    return ReconBatch(*(t[keep] for t in (batch.rgb, batch.depth, batch.K, batch.vertices, batch.joints3d)))
+
+
 # --- loss and validation ----------------------------------------------------------------------------------------
 
 
@@ -306,6 +323,8 @@ class ReconTask:
         batch = make_recon_batch(self.train, rows.numpy())
         if self.config.train.augment:
             batch = augment_recon(batch, self.config.augment, generator, self.config.model.input)
+        if self.config.model.input != "rgb":
+            batch = keep_with_depth(batch)
         x, ref = recon_input(self.config.model.input, batch.rgb, batch.depth)
         return recon_loss(model(x, batch.K, ref), batch, self.faces, self.config, generator)
 
