@@ -393,7 +393,13 @@ def _add_eval_commands(sub: argparse._SubParsersAction) -> None:
     meas.add_argument("--modes", default="rgb_ref,rgbd,depth,rgb", help="comma list of rgb_ref, rgbd, depth, rgb")
     meas.add_argument("--n", type=int, default=60, help="photos per mode (default 60)")
     meas.add_argument("--size", type=int, default=640, help="photo side, px (default 640)")
-    meas.add_argument("--views", choices=("random", "thesis"), default="random", help="camera views")
+    meas.add_argument(
+        "--views",
+        choices=("random", "thesis", "guided"),
+        default="random",
+        help="camera views: random (any side and height), thesis (its 22 viewpoints), guided (as the photo guide "
+        "asks: from the side and above, foot flat on the floor)",
+    )
     meas.add_argument("--seed", type=int, default=4242, help="seed of the test photos (default 4242; training: 1-3)")
     meas.add_argument("--json", help="also write per-photo records to this JSON file")
     meas.add_argument("--no-progress", action="store_true", help="no progress bar")

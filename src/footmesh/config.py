@@ -222,6 +222,10 @@ class MeasureConfig:
     max_border_pixels: int = 12
     """More silhouette pixels than this on the photo's edge: the foot is cut off."""
     edge_margin_px: float = 2.0
+    max_model_outside: float = 0.25
+    """Refuse the photo when more than this fraction of the fitted model's visible vertices fall more than 2 px
+    outside the foot's silhouette (``FootFit.quality``): the fit went wrong and its millimetres would be too. Good
+    fits on the synthetic eval: 0.01-0.08; the gross failures (50-140 mm off): 0.5-0.9."""
     uncertainty_samples: int = 48
     uncertainty_factor: dict[str, float] = field(
         default_factory=lambda: {"depth": 4.5, "a4": 5.5, "card": 5.5, "marker": 5.5}

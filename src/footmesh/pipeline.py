@@ -237,6 +237,12 @@ def run_pipeline(photo: Photo, side: str, config: MeasureConfig, input: str = "a
         side=side,
     )
     timings["fit_s"] = time.perf_counter() - t
+    outside = fit.quality.get("vertices_outside_2px", 0.0)
+    if outside > config.max_model_outside:
+        raise PipelineError(
+            f"the foot model could not be fitted to this photo ({100 * outside:.0f} % of the fitted foot falls "
+            "outside the foot in the photo); retake it from above and to the side, the whole foot flat on the floor"
+        )
 
     t = time.perf_counter()
     model = default_model()
@@ -285,7 +291,12 @@ def run_pipeline(photo: Photo, side: str, config: MeasureConfig, input: str = "a
         "joints3d_mm": np.round(fit.joints_cam, 2).tolist() if fit.scaled else None,
         "angles": dict(zip(sk.DOF_NAMES, np.round(fit.angles, 4).tolist(), strict=True)),
         "shape": np.round(fit.shape, 4).tolist(),
-        "fit": {"loss": float(fit.loss), "iterations": int(fit.iterations), "terms": fit.loss_terms},
+        "fit": {
+            "loss": float(fit.loss),
+            "iterations": int(fit.iterations),
+            "terms": fit.loss_terms,
+            "quality": {k: float(v) for k, v in fit.quality.items()},
+        },
         "timings_s": {k: round(v, 3) for k, v in timings.items()},
         "messages": messages,
         "units": "mm" if fit.scaled else "unscaled (mesh in arbitrary units)",

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 import trimesh
 
 from footmesh.synth import raster
@@ -122,3 +123,17 @@ def test_random_views_frame_the_reference_object_as_the_photo_guide_asks():
                 inside[frames] += bool(((corners >= 0) & (corners <= 48)).all())
         assert inside[True] == 8, inside  # every corner in the photo
         assert inside[False] < 8, inside  # framing on the foot alone cuts some objects off
+
+
+def test_guided_views_see_the_foot_from_the_side_and_flat_on_the_floor():
+    from footmesh.synth.render import Renderer
+    from footmesh.synth.scene import SynthConfig, guided_view_config
+
+    renderer = Renderer(guided_view_config(size=32, reference="card"))
+    for i in range(10):
+        s = renderer.render(5, i)
+        # the foot's long axis (foot x) lies across the view: within 30 deg of the image plane, plus the tilt
+        assert abs(s["cam_from_foot"][2, 0]) < 0.6, i
+        assert not bool(s["lifted"])
+    with pytest.raises(ValueError, match="azimuths"):
+        SynthConfig(min_azimuth_deg=150.0, max_azimuth_deg=140.0)

@@ -122,15 +122,17 @@ def evaluate_mode(
 
     from footmesh.pipeline import measure_photo
     from footmesh.synth.render import Renderer
-    from footmesh.synth.scene import SynthConfig, thesis_view
+    from footmesh.synth.scene import SynthConfig, guided_view_config, thesis_view
 
     renderers = {}
 
     def renderer(reference: str) -> Renderer:
         if reference not in renderers:
-            renderers[reference] = Renderer(
-                SynthConfig(size=size, reference=reference, views=views, frame_reference=True)
-            )
+            if views == "guided":
+                config = guided_view_config(size=size, reference=reference)
+            else:
+                config = SynthConfig(size=size, reference=reference, views=views, frame_reference=True)
+            renderers[reference] = Renderer(config)
         return renderers[reference]
 
     result = ModeResult(mode)

@@ -59,6 +59,9 @@ class SynthConfig:
     fov_deg: tuple[float, float] = (60.0, 75.0)
     distance_mm: tuple[float, float] = (300.0, 700.0)
     max_azimuth_deg: float = 140.0
+    min_azimuth_deg: float = 0.0
+    """Views within this of straight ahead of the toes (azimuth 0) are not drawn: the drawn |azimuth| is mapped
+    linearly onto [min, max] (same random numbers: 0 keeps the datasets made before this field)."""
     elevation_deg: tuple[float, float] = (20.0, 80.0)
     roll_deg: float = 10.0
     leg_top_mm: tuple[float, float] = (380.0, 520.0)
@@ -75,6 +78,10 @@ class SynthConfig:
             raise ValueError(f"size must be 16..4096 pixels, got {self.size}")
         if self.views not in VIEW_CHOICES:
             raise ValueError(f"views must be one of {VIEW_CHOICES}, got {self.views!r}")
+        if not 0 <= self.min_azimuth_deg <= self.max_azimuth_deg <= 180:
+            raise ValueError(
+                f"azimuths must satisfy 0 <= min <= max <= 180 deg, got {self.min_azimuth_deg}, {self.max_azimuth_deg}"
+            )
         if self.reference not in REFERENCE_CHOICES:
             raise ValueError(f"reference must be one of {REFERENCE_CHOICES}, got {self.reference!r}")
 
@@ -140,6 +147,19 @@ class Scene:
     noise_seed: int
 
 
+def guided_view_config(**fields) -> SynthConfig:
+    """Scenes of photos taken as the photo guide asks (docs/measure.md): from the side (60-120 deg off the toes'
+    direction) and above (35-75 deg), the whole foot flat on the floor, the reference object in view."""
+    guided = dict(
+        min_azimuth_deg=60.0,
+        max_azimuth_deg=120.0,
+        elevation_deg=(35.0, 75.0),
+        lifted_fraction=0.0,
+        frame_reference=True,
+    )
+    return SynthConfig(**{**guided, **fields})
+
+
 def sample_scene(seed: int, index: int, config: SynthConfig, num_components: int) -> Scene:
     """Draw one sample's parameters; deterministic in (seed, index, config)."""
     rng = np.random.default_rng([seed, index])
@@ -168,7 +188,11 @@ def sample_scene(seed: int, index: int, config: SynthConfig, num_components: int
     light_colour = np.array([1.0 + 0.06 * warm, 1.0, 1.0 - 0.08 * warm])
     fov = float(rng.uniform(*config.fov_deg))
     distance = float(rng.uniform(*config.distance_mm))
-    azimuth = math.radians(rng.uniform(-config.max_azimuth_deg, config.max_azimuth_deg))
+    azimuth_deg = rng.uniform(-config.max_azimuth_deg, config.max_azimuth_deg)
+    if config.min_azimuth_deg > 0:
+        spread = (config.max_azimuth_deg - config.min_azimuth_deg) / config.max_azimuth_deg
+        azimuth_deg = math.copysign(config.min_azimuth_deg + abs(azimuth_deg) * spread, azimuth_deg)
+    azimuth = math.radians(azimuth_deg)
     elevation = math.radians(rng.uniform(*config.elevation_deg))
     roll = math.radians(rng.normal(0, config.roll_deg / 2))
     jitter = rng.normal(0, 15.0, 3) * np.array([1, 1, 0.5])
