@@ -116,6 +116,34 @@ def test_scaling_the_scene_scales_the_mesh_exactly():
     assert torch.allclose(a.vertices.mean(1), a.centre, atol=1e-2)
 
 
+def test_spatial_centroid_lies_on_the_ray_of_its_soft_argmax_pixel():
+    """The centroid projects onto the soft-argmax pixel of the centre map, whatever the intrinsics."""
+    torch.manual_seed(3)
+    net = ReconNet(TINY).eval()
+    assert TINY.centre_head == "spatial" and net.centre_map is not None
+    with torch.no_grad():
+        net.centre_map.weight.normal_(0.0, 3.0)  # a peaked map somewhere off the image centre
+    rgb, depth = scene()
+    x, ref = recon_input("rgbd", rgb, depth)
+    captured = {}
+    net.encoder.stages[1].register_forward_hook(lambda _m, _i, out: captured.update(feature=out))
+    K = camera(b=2)  # noqa: N806
+    with torch.no_grad():
+        out = net(x, K, ref)
+        feature = captured["feature"]
+        prob = net.centre_map(feature).flatten(1).softmax(1).view(2, *feature.shape[2:])
+    stride = SIZE / feature.shape[-1]
+    grid = (torch.arange(feature.shape[-1]) + 0.5) * stride - 0.5
+    want = torch.stack([(prob.sum(1) * grid).sum(1), (prob.sum(2) * grid).sum(1)], -1)
+    seen = (out.centre @ K[0].T)[:, :2] / out.centre[:, 2:]
+    assert torch.allclose(seen, want, atol=1e-3), (seen, want)
+    assert (want - (SIZE - 1) / 2).abs().max() > 1.0  # really off the centre: the test can fail
+    glob = ReconNet(replace(TINY, centre_head="global"))
+    assert glob.centre_map is None
+    with pytest.raises(ValueError, match="centre_head"):
+        replace(TINY, centre_head="middle")
+
+
 def test_rgb_focal_length_sets_the_depth():
     """RGB: the same image taken with a k times longer lens shows the same objects k times farther away."""
     torch.manual_seed(1)

@@ -153,13 +153,17 @@ class SpiralDecoder(nn.Module):
                 head.linear.weight.mul_(HEAD_INIT_GAIN)
         self.output = CentredOutput(cfg.in_features, cfg.output)
 
-    def forward(self, latent: torch.Tensor, skips: Sequence[torch.Tensor] | None = None) -> DecoderOutput:
+    def forward(
+        self, latent: torch.Tensor, skips: Sequence[torch.Tensor] | None = None, centre: torch.Tensor | None = None
+    ) -> DecoderOutput:
         """Decode a batch.
 
         Args:
             latent: (B, in_features) image code.
             skips: ``len(config.skip_in_channels)`` encoder features, coarsest first, each (B, C_k, H, W) or
                 (B, C_k); None or empty when the configuration has none.
+            centre: (B, 3) the vertices' centroid when the caller places it (e.g. from image evidence); None:
+                the centroid head's, from the latent.
         Returns:
             ``DecoderOutput`` with vertices (B, V_0, 3) and centre (B, 3), mm, camera frame.
         """
@@ -182,7 +186,10 @@ class SpiralDecoder(nn.Module):
             detail = self.heads[layer](x)
             coordinates = detail if coordinates is None else self.upsample[layer - 1](coordinates) + detail
             levels.append(coordinates)
-        centre = self.output.centre(latent)
+        if centre is None:
+            centre = self.output.centre(latent)
+        elif centre.shape != (b, 3):
+            raise ValueError(f"centre must be (B, 3) = ({b}, 3), got {tuple(centre.shape)}")
         meshes = tuple(self.output(c, centre) for c in reversed(levels))
         return DecoderOutput(meshes[0], centre, meshes)
 
