@@ -12,7 +12,7 @@ import logging
 import math
 import os
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import cv2
@@ -22,7 +22,8 @@ import torch
 from footmesh import __version__, report
 from footmesh.config import MeasureConfig
 from footmesh.cues import Cues
-from footmesh.cues.predict import predict_cues
+from footmesh.cues.predict import average_cues, predict_cues
+from footmesh.cues.refine import refine_silhouette
 from footmesh.load import Photo, load_photo
 from footmesh.measure import MEASUREMENT_NAMES, FootLandmarks, Measurements, measure_foot
 from footmesh.model import skeleton as sk
@@ -113,12 +114,14 @@ def locate_foot(rgb: np.ndarray | None, depth: np.ndarray | None, kind: str, con
     crop_side = int(math.ceil(max(bw, bh) / config.crop_fill))
     cx, cy = x + bw / 2, y + bh / 2
     crop = CropBox(int(round(cx - crop_side / 2)), int(round(cy - crop_side / 2)), crop_side)
-    second = predict_cues(
-        kind,
-        None if rgb is None else crop.cut(rgb),
-        None if depth is None else crop.cut(depth, fill=0.0),
-    )
+    crop_rgb = None if rgb is None else crop.cut(rgb)
+    crop_depth = None if depth is None else crop.cut(depth, fill=0.0)
+    second = predict_cues(kind, crop_rgb, crop_depth)
+    if kind == "rgbd" and config.rgbd_with_depth_network:
+        second = average_cues([second, predict_cues("depth", None, crop_depth)])
     cues = _cues_in_photo(second, crop, w, h)
+    if rgb is not None and config.refine_silhouette:
+        cues = replace(cues, silhouette=refine_silhouette(rgb, cues.silhouette))
     mask = cues.silhouette >= 0.5
     n, labels, stats = _components(mask)
     if n <= 1:

@@ -87,3 +87,23 @@ def predict_cues(
         out_size=(width, height),
     )
     return Cues(silhouette=sil[0], joints2d_px=joints[0], joint_confidence=conf[0], input=input_kind)
+
+
+def average_cues(cues: list[Cues]) -> Cues:
+    """One ``Cues`` from several networks' cues of the same image: silhouette probabilities averaged, each joint
+    averaged with its confidences as weights, confidences averaged; ``input`` names them all ("rgbd+depth")."""
+    if not cues:
+        raise ValueError("average_cues needs at least one Cues")
+    shapes = {c.silhouette.shape for c in cues}
+    if len(shapes) != 1:
+        raise ValueError(f"cues of different image sizes cannot be averaged: {sorted(shapes)}")
+    silhouette = np.mean([c.silhouette for c in cues], axis=0).astype(np.float32)
+    conf = np.stack([c.joint_confidence for c in cues]).astype(np.float64)  # (N, 18)
+    weights = conf + 1e-3  # joints no network is sure of: the plain mean
+    joints = (weights[..., None] * np.stack([c.joints2d_px for c in cues])).sum(0) / weights.sum(0)[:, None]
+    return Cues(
+        silhouette=silhouette,
+        joints2d_px=joints.astype(np.float32),
+        joint_confidence=conf.mean(0).astype(np.float32),
+        input="+".join(c.input for c in cues),
+    )
