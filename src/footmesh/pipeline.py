@@ -23,7 +23,7 @@ from footmesh import __version__, report
 from footmesh.config import MeasureConfig
 from footmesh.cues import Cues
 from footmesh.cues.predict import average_cues, predict_cues
-from footmesh.cues.refine import refine_silhouette
+from footmesh.cues.refine import height_image, refine_silhouette
 from footmesh.load import Photo, load_photo
 from footmesh.measure import MEASUREMENT_NAMES, FootLandmarks, Measurements, measure_foot
 from footmesh.model import skeleton as sk
@@ -86,9 +86,12 @@ def _components(mask: np.ndarray) -> tuple[int, np.ndarray, np.ndarray]:
     return n, labels, stats
 
 
-def locate_foot(rgb: np.ndarray | None, depth: np.ndarray | None, kind: str, config: MeasureConfig) -> Located:
+def locate_foot(
+    rgb: np.ndarray | None, depth: np.ndarray | None, K: np.ndarray, kind: str, config: MeasureConfig
+) -> Located:
     """Find the foot: cues on the whole photo (padded square), then again on a square crop framed like the
-    training images (the foot's longer side ``config.crop_fill`` of the crop)."""
+    training images (the foot's longer side ``config.crop_fill`` of the crop), the silhouette then snapped to the
+    photo's edges (or, with a depth map alone, to those of the height above the floor; K (3, 3) intrinsics)."""
     ref = rgb if rgb is not None else depth
     h, w = ref.shape[:2]
     side = max(h, w)
@@ -120,8 +123,10 @@ def locate_foot(rgb: np.ndarray | None, depth: np.ndarray | None, kind: str, con
     if kind == "rgbd" and config.rgbd_with_depth_network:
         second = average_cues([second, predict_cues("depth", None, crop_depth)])
     cues = _cues_in_photo(second, crop, w, h)
-    if rgb is not None and config.refine_silhouette:
-        cues = replace(cues, silhouette=refine_silhouette(rgb, cues.silhouette))
+    if config.refine_silhouette:
+        edges = rgb if rgb is not None else height_image(depth, K, cues.mask)
+        if edges is not None:
+            cues = replace(cues, silhouette=refine_silhouette(edges, cues.silhouette))
     mask = cues.silhouette >= 0.5
     n, labels, stats = _components(mask)
     if n <= 1:
@@ -219,7 +224,7 @@ def run_pipeline(photo: Photo, side: str, config: MeasureConfig, input: str = "a
     if kind in ("rgbd", "depth") and depth is None:
         raise PipelineError(f"{kind} input needs a depth map (--depth)")
     with torch.inference_mode():
-        located = locate_foot(None if kind == "depth" else rgb, None if kind == "rgb" else depth, kind, config)
+        located = locate_foot(None if kind == "depth" else rgb, None if kind == "rgb" else depth, K, kind, config)
     check_framing(located, w, h, config)
     timings["cues_s"] = time.perf_counter() - t
 

@@ -6,7 +6,7 @@ import cv2
 import numpy as np
 import pytest
 
-from footmesh.cues.refine import RefineConfig, refine_silhouette
+from footmesh.cues.refine import RefineConfig, height_image, refine_silhouette
 from footmesh.synth.render import Renderer
 from footmesh.synth.scene import guided_view_config
 
@@ -53,3 +53,20 @@ def test_untrusted_cuts_and_empty_silhouettes_are_left_alone(photos):
     assert refine_silhouette(s["rgb"], empty) is empty
     with pytest.raises(ValueError, match="uint8"):
         refine_silhouette(s["rgb"].astype(np.float32), coarse)
+
+
+def test_a_depth_map_alone_refines_on_the_height_above_the_floor(photos):
+    before, after = [], []
+    for s in photos:
+        truth = s["silhouette"].astype(bool)
+        coarse = network_like(truth)
+        image = height_image(s["depth"].astype(np.float32), s["K"], coarse >= 0.5)
+        assert image is not None and image.dtype == np.uint8 and image.shape == (*truth.shape, 3)
+        floor = (s["labels"] == 0) & (s["depth"] > 0)  # label 0: floor / background
+        assert np.median(image[..., 0][floor]) <= 12  # within 2 mm of the fitted plane
+        assert np.median(image[..., 0][truth & (s["depth"] > 0)]) > 60  # the foot stands > 10 mm above it
+        before.append(iou(coarse >= 0.5, truth))
+        after.append(iou(refine_silhouette(image, coarse) >= 0.5, truth))
+    assert np.mean(after) > np.mean(before) + 0.03, (before, after)
+    no_floor = np.where(photos[0]["silhouette"], photos[0]["depth"], 0).astype(np.float32)
+    assert height_image(no_floor, photos[0]["K"], photos[0]["silhouette"].astype(bool)) is None

@@ -6,6 +6,10 @@ feet fitted 2.5 mm short on average). The photo itself has the edge at full reso
 colour models of foot and background and cuts along the strongest edges, but only inside a band around the
 network's outline: pixels well inside stay foot, pixels well outside stay background, so the cut can neither
 swallow the leg nor lose the foot. Same photos: IoU 0.97, length error 3.47 -> 2.01 mm, ~0.2 s.
+
+A depth map alone has no colours; ``height_image`` turns it into an image of height above the floor (the plane
+fitted to the depth away from the foot), whose edges are the foot's against the floor. 16 guided depth-only
+photos: IoU 0.90 -> 0.93, length error 4.65 -> 3.50 mm, width 1.80 -> 1.22 mm.
 """
 
 from __future__ import annotations
@@ -64,6 +68,39 @@ def refine_silhouette(rgb: np.ndarray, silhouette: np.ndarray, config: RefineCon
     out = np.zeros_like(silhouette, dtype=np.float32)
     out[y0:y1, x0:x1] = cv2.GaussianBlur(cut.astype(np.float32), (0, 0), config.edge_blur_px)
     return out
+
+
+def height_image(
+    depth_mm: np.ndarray, K: np.ndarray, foot_mask: np.ndarray, mm_per_level: float = 1 / 6
+) -> np.ndarray | None:
+    """(H, W, 3) uint8 grey image of each pixel's height above the floor, to refine a silhouette on a depth map
+    alone: the floor is the plane fitted (least squares, outliers dropped) to the depth pixels well away from
+    ``foot_mask`` (H, W) bool, so the foot's edges against the floor become edges of this image. None when too
+    little floor is seen to fit a plane."""
+    h, w = depth_mm.shape
+    z = depth_mm.astype(np.float64)
+    v, u = np.mgrid[0:h, 0:w]
+    points = np.stack([(u - K[0, 2]) * z / K[0, 0], (v - K[1, 2]) * z / K[1, 1], z], axis=-1)
+    away = cv2.dilate(foot_mask.astype(np.uint8), _disc(max(h, w) // 32)) == 0
+    floor = points[away & (z > 0)]
+    if len(floor) < 500:
+        return None
+    floor = floor[:: max(len(floor) // 20000, 1)]
+    keep = np.ones(len(floor), bool)
+    for _ in range(5):  # the leg and other objects off the plane drop out
+        centre = floor[keep].mean(axis=0)
+        normal = np.linalg.svd(floor[keep] - centre, full_matrices=False)[2][2]
+        distance = (floor - centre) @ normal
+        keep = np.abs(distance) < max(3.0 * 1.4826 * float(np.median(np.abs(distance[keep]))), 2.0)
+        if keep.sum() < 100:
+            return None
+    height = (points - centre) @ normal
+    on_foot = foot_mask & (z > 0)
+    if on_foot.any() and np.median(height[on_foot]) < 0:
+        height = -height
+    height[z <= 0] = 0.0
+    grey = np.clip(height / mm_per_level, 0, 255).astype(np.uint8)
+    return np.repeat(grey[..., None], 3, axis=-1)
 
 
 def _disc(radius: int) -> np.ndarray:
