@@ -234,10 +234,10 @@ class MeasureConfig:
     fits on the synthetic eval: 0.01-0.08; the gross failures (50-140 mm off): 0.5-0.9."""
     uncertainty_samples: int = 48
     uncertainty_factor: dict[str, float] = field(
-        default_factory=lambda: {"depth": 4.5, "a4": 5.5, "card": 5.5, "marker": 5.5}
+        default_factory=lambda: {"depth": 2.1, "a4": 2.9, "card": 2.9, "marker": 2.9}
     )
-    """Calibration of the fit's covariance-based SD per scale source: the 68th percentile of |error| / SD on
-    ``footmesh eval measure --seed 4242 --n 20`` (length and width: 5.8 and 2.6 with RGB-D, 4.4 and 3.2 with depth
-    alone, 5.7 and 5.2 over the 5 photos whose reference object was found), so that about 68 % of true errors fall
-    within one uncertainty; checked on another seed in the README."""
+    """Calibration of the fit's covariance-based SD per scale source: the old factor times the 68th percentile of
+    |error| / uncertainty over length and ball width on ``footmesh eval measure --views guided --seed 777 --n 20``
+    (0.457 over 80 depth errors, RGB-D and depth alone; 0.526 over 32 with a reference object), so that about 68 %
+    of true errors fall within one uncertainty; checked on the seed-4242 photos in the README."""
     uncertainty_floor_mm: float = 0.5
