@@ -150,6 +150,15 @@ def test_a_fit_that_does_not_match_the_photo_is_refused(tmp_path):
 
 
 @pytest.mark.slow
+def test_a_plain_photo_of_a_foot_seen_end_on_is_refused(tmp_path):
+    ex = next(e for e in examples() if e.depth is None and e.intrinsics is not None)
+    strict = MeasureConfig(max_rgb_end_on=-1.0)  # any view counts as end-on: the refusal path
+    with pytest.raises(PipelineError, match="seen end-on"):
+        measure_photo(ex.image, tmp_path, intrinsics=ex.intrinsics, config=strict)
+    assert not (tmp_path / "result.json").exists()
+
+
+@pytest.mark.slow
 def test_a_photo_without_reference_is_unscaled(tmp_path):
     from footmesh.eval.measure import true_measurements
     from footmesh.synth.render import Renderer
