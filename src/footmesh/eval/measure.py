@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 import tempfile
 import time
 from dataclasses import dataclass, field
@@ -210,7 +211,8 @@ def format_tables(results: dict[str, ModeResult]) -> str:
         if failed:
             reasons: dict[str, int] = {}
             for msg in failed.values():
-                reasons[msg.split(";")[0][:90]] = reasons.get(msg.split(";")[0][:90], 0) + 1
+                reason = re.sub(r"\d+", "N", msg.split(";")[0])[:90]  # "55 deg", "83 %": one reason, counted
+                reasons[reason] = reasons.get(reason, 0) + 1
             lines.append("")
             lines.append(
                 f"{mode}: {len(failed)} photo(s) refused: " + "; ".join(f"{k} ({v})" for k, v in reasons.items())
