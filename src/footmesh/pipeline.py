@@ -269,7 +269,13 @@ def run_pipeline(photo: Photo, side: str, config: MeasureConfig, input: str = "a
         rest = model(torch.as_tensor(fit.shape, dtype=torch.float32)[None], side=fit.side)
     rest_joints = rest.joints[0].double().numpy()
     faces = model.faces(fit.side).numpy()
-    measured = measure_foot(canonical, faces, FootLandmarks.from_joints(rest_joints), side=fit.side)
+    try:
+        measured = measure_foot(canonical, faces, FootLandmarks.from_joints(rest_joints), side=fit.side)
+    except ValueError as exc:  # a shape far outside the population (a failed fit) has no well-defined measurements
+        raise PipelineError(
+            f"the fitted foot could not be measured ({exc}); retake the photo from the side and above, the whole "
+            "foot flat on the floor and in view"
+        ) from exc
     scale_source = "depth" if kind != "rgb" else (reference.kind if reference is not None else "none")
     if not fit.scaled:  # the fit could not use the evidence: say so rather than name a source it did not use
         scale_source = "none"
