@@ -226,6 +226,12 @@ class MeasureConfig:
     """RGB photos (no depth) are refused when the fitted foot's long axis points within acos(this) = 60 deg of the
     line of sight: its length is then foreshortened and poorly seen (random-view eval: length errors of 13-70 mm in
     6 of 7 such photos, against 2-21 mm for side views). Depth sees along the line of sight, so RGB-D is kept."""
+    joint_sigma_224_px: float = 3.0
+    """Expected error of a network's 2D joint, in pixels of its crop resized to 224 px (the networks' mean error
+    there is 3-4 px); the fit's joint sigma is this times crop side / 224, in working pixels. Against a fixed 3
+    working pixels (crops are 300-700 px, so joints were weighed 1.5-3x too strongly against the silhouette) on
+    the guided seed-777 photos: RGB-D length / width MAE 2.44 / 0.85 -> 2.39 / 0.68 mm (bias -1.3 -> -0.4 mm),
+    RGB + floor 9.3 -> 7.9 mm (14 and 10 photos); 1.5 was worse."""
     refine_silhouette: bool = True
     """Snap the networks' silhouette to the photo's edges (``cues.refine``; needs the RGB image)."""
     rgbd_with_depth_network: bool = True

@@ -140,6 +140,11 @@ def _rest(cues: Cues) -> tuple[np.ndarray, np.ndarray, str]:
     return cues.joints2d_px, cues.joint_confidence, cues.input
 
 
+def joint_sigma_px(crop_side_px: int, config: MeasureConfig) -> float:
+    """The fit's expected 2D joint error in working pixels: the networks' error scales with the crop they saw."""
+    return max(config.joint_sigma_224_px * crop_side_px / 224.0, 1.0)
+
+
 def check_framing(located: Located, width: int, height: int, config: MeasureConfig) -> None:
     """Refuse a foot cut off by the photo's edge (its length could not be measured)."""
     m = located.mask
@@ -214,7 +219,7 @@ class _Files:
 def run_pipeline(photo: Photo, side: str, config: MeasureConfig, input: str = "auto") -> tuple[dict, _Files]:
     """Everything after loading: the result dict and the arrays of the files to write."""
     from footmesh.cues.reference import detect_reference
-    from footmesh.fit import fit_foot
+    from footmesh.fit import FitConfig, fit_foot
 
     timings = {}
     t = time.perf_counter()
@@ -243,6 +248,7 @@ def run_pipeline(photo: Photo, side: str, config: MeasureConfig, input: str = "a
         depth_mm=None if kind == "rgb" else depth,
         cam_from_floor=None if reference is None else reference.cam_from_floor,
         side=side,
+        config=FitConfig(joint_sigma_px=joint_sigma_px(located.crop.side, config)),
     )
     timings["fit_s"] = time.perf_counter() - t
     if kind == "rgb":
