@@ -294,10 +294,10 @@ class ReconNet(nn.Module):
         self.decoder = SpiralDecoder(cfg.decoder, hierarchy) if cfg.kind == "ism" else None
         self.centre_map = None
         if cfg.kind == "ism" and cfg.centre_head == "spatial":
-            self.centre_map = nn.Conv2d(cfg.widths[CENTRE_STAGE], 1, kernel_size=1)
+            # no bias: a softmax over the map ignores a constant added to it, so a bias would never learn
+            self.centre_map = nn.Conv2d(cfg.widths[CENTRE_STAGE], 1, kernel_size=1, bias=False)
             # zero start: a uniform map, the centroid on the ray through the image centre
             nn.init.zeros_(self.centre_map.weight)
-            nn.init.zeros_(self.centre_map.bias)
         self.generator = EdgeConvGenerator(cfg.edgeconv) if cfg.kind == "edgeconv" else None
 
     @property
