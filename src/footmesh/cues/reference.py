@@ -76,6 +76,8 @@ LOOSE_FACTOR = 3.0
 """Candidates are refined when they pass the metric test with tolerances this many times wider."""
 MIN_SIDE_PX = 14.0
 """Shortest side (px) of an object worth measuring."""
+FIRST_RADIUS_PX = 3.0
+"""Search radius across a rough side of the first refinement pass (and of a sheet's completion), px."""
 BORDER_MARGIN_PX = 2.0
 """Corners must lie this far inside the image: an object cut by the border gives a false quadrilateral."""
 MIN_SIDE_SUPPORT = 0.35
@@ -874,13 +876,18 @@ def _fit_sides(
 
 
 def _refine_sides(
-    quad: np.ndarray, blurred: np.ndarray, valid: np.ndarray | None, radii: tuple[float, ...] = (3.0, 1.5)
+    quad: np.ndarray,
+    blurred: np.ndarray,
+    valid: np.ndarray | None,
+    radii: tuple[float, ...] = (FIRST_RADIUS_PX, 1.5),
+    first: list[_Line | None] | None = None,
 ) -> tuple[np.ndarray, list[_Line]] | None:
     """Sub-pixel corners of a quad (4, 2) px from the image's edges along its sides, and the four fitted lines
-    (line i runs from corner i to corner i + 1)."""
+    (line i runs from corner i to corner i + 1). ``first``: ``_fit_sides(quad, ..., radii[0])`` when the caller
+    already has it."""
     lines: list[_Line] = []
-    for radius in radii:
-        fitted = _fit_sides(quad, blurred, valid, radius)
+    for step, radius in enumerate(radii):
+        fitted = first if step == 0 and first is not None else _fit_sides(quad, blurred, valid, radius)
         if fitted is None or any(ln is None for ln in fitted):
             return None
         lines = fitted
@@ -891,13 +898,21 @@ def _refine_sides(
     return quad, lines
 
 
-def _complete_sheet(quad: np.ndarray, blurred: np.ndarray, K: np.ndarray, valid: np.ndarray | None) -> list:
+def _complete_sheet(
+    quad: np.ndarray,
+    blurred: np.ndarray,
+    K: np.ndarray,
+    valid: np.ndarray | None,
+    lines: list[_Line | None] | None = None,
+) -> list:
     """Quads (4, 2) px for a sheet of which three sides show and the fourth is hidden or cut short (the foot over
     a corner): the two corners on the three sides' lines that are not their intersections are placed so that
-    the four make a rectangle of A4's proportions (metric, with K), for either side being the long one."""
+    the four make a rectangle of A4's proportions (metric, with K), for either side being the long one.
+    ``lines``: ``_fit_sides(quad, ..., 3.0)`` when the caller already has it."""
     from scipy.optimize import least_squares
 
-    lines = _fit_sides(quad, blurred, valid, 3.0)
+    if lines is None:
+        lines = _fit_sides(quad, blurred, valid, FIRST_RADIUS_PX)
     if lines is None:
         return []
     good = [
@@ -1061,9 +1076,11 @@ def _finish(
     order once its sides are known. A sheet whose fourth side the rough quad misses (the foot hides a corner,
     the region's outline cuts across it) is completed from its other three (``_complete_sheet``) and tried again.
     """
-    result = _finish_quad(quad, kinds, blurred, K, valid, mirrored)
+    # the first pass of the sides' refinement is also what the completion starts from: fitted once for both
+    first = _fit_sides(quad, blurred, valid, FIRST_RADIUS_PX)
+    result = _finish_quad(quad, kinds, blurred, K, valid, mirrored, first=first)
     if result is None and "a4" in kinds:
-        for completed in _complete_sheet(quad, blurred, K, valid):
+        for completed in _complete_sheet(quad, blurred, K, valid, lines=first):
             result = _finish_quad(completed, ["a4"], blurred, K, valid)
             if result is not None:
                 break
@@ -1077,10 +1094,11 @@ def _finish_quad(
     K: np.ndarray,
     valid: np.ndarray | None,
     mirrored: bool = False,
+    first: list[_Line | None] | None = None,
 ) -> tuple[float, ReferenceObject] | None:
-    """``_finish`` without the completion of a sheet."""
+    """``_finish`` without the completion of a sheet (``first``: the sides fitted at ``FIRST_RADIUS_PX``)."""
     h, w = blurred.shape[:2]
-    refined = _refine_sides(quad, blurred, valid)
+    refined = _refine_sides(quad, blurred, valid, first=first)
     if refined is None:
         return None
     corners, lines = refined
