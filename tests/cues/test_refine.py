@@ -70,3 +70,18 @@ def test_a_depth_map_alone_refines_on_the_height_above_the_floor(photos):
     assert np.mean(after) > np.mean(before) + 0.03, (before, after)
     no_floor = np.where(photos[0]["silhouette"], photos[0]["depth"], 0).astype(np.float32)
     assert height_image(no_floor, photos[0]["K"], photos[0]["silhouette"].astype(bool)) is None
+
+
+def test_missing_depth_on_the_foots_outline_is_not_read_as_floor(photos):
+    """Sensors drop the pixels of depth edges (the foot's outline): they take the nearest measured height, so a
+    refinement on the height image no longer shaves the outline off."""
+    for s in photos[:2]:
+        truth = s["silhouette"].astype(bool)
+        rim = truth & ~cv2.erode(truth.astype(np.uint8), np.ones((7, 7), np.uint8)).astype(bool)
+        depth = np.where(rim, 0, s["depth_clean"]).astype(np.float32)  # a 3-px band of the foot's rim missing
+        image = height_image(depth, s["K"], truth)
+        assert image is not None
+        height = image[..., 0].astype(float)
+        assert np.median(height[rim]) > 24  # > 4 mm above the floor, as the foot pixels beside them
+        coarse = network_like(truth)
+        assert iou(refine_silhouette(image, coarse) >= 0.5, truth) >= iou(coarse >= 0.5, truth)

@@ -9,7 +9,10 @@ swallow the leg nor lose the foot. Same photos: IoU 0.97, length error 3.47 -> 2
 
 A depth map alone has no colours; ``height_image`` turns it into an image of height above the floor (the plane
 fitted to the depth away from the foot), whose edges are the foot's against the floor. 16 guided depth-only
-photos: IoU 0.90 -> 0.93, length error 4.65 -> 3.50 mm, width 1.80 -> 1.22 mm.
+photos: IoU 0.90 -> 0.93, length error 4.65 -> 3.50 mm, width 1.80 -> 1.22 mm. Depth pixels the sensor dropped
+(most of them on the foot's outline) take the nearest measured height instead of reading as floor: guided
+depth-only photos of seeds 555 / 777 (20 each), length error 5.06 -> 3.48 / 2.44 -> 2.25 mm, width 2.14 -> 0.88 /
+0.94 -> 0.91 mm.
 """
 
 from __future__ import annotations
@@ -18,6 +21,7 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
+from scipy import ndimage
 
 
 @dataclass(frozen=True)
@@ -98,7 +102,14 @@ def height_image(
     on_foot = foot_mask & (z > 0)
     if on_foot.any() and np.median(height[on_foot]) < 0:
         height = -height
-    height[z <= 0] = 0.0
+    # a missing pixel takes the height of the nearest measured one: sensors drop most pixels on a depth edge, which
+    # is the foot's outline, and read as floor (0) they let the cut shave the toe tips and the sole's rim
+    missing = z <= 0
+    if missing.all():
+        return None
+    if missing.any():
+        nearest = ndimage.distance_transform_edt(missing, return_distances=False, return_indices=True)
+        height = height[nearest[0], nearest[1]]
     grey = np.clip(height / mm_per_level, 0, 255).astype(np.uint8)
     return np.repeat(grey[..., None], 3, axis=-1)
 
