@@ -863,16 +863,26 @@ def _fit_sides(
     quad: np.ndarray, blurred: np.ndarray, valid: np.ndarray | None, radius: float
 ) -> list[_Line | None] | None:
     """The line fitted to the image's edges along each side of a quad (None where none), or None if a side is
-    too short (line i runs from corner i to corner i + 1)."""
+    too short (line i runs from corner i to corner i + 1).
+
+    Once one side has no line and two could not carry a sheet's completion, the quad can neither be refined
+    (every side needed) nor completed (three good sides needed): the remaining sides are left None unfitted.
+    """
+    sides = [float(np.linalg.norm(quad[(i + 1) % 4] - quad[i])) for i in range(4)]
+    if min(sides) < MIN_SIDE_PX:
+        return None
     lines: list[_Line | None] = []
     for i in range(4):
-        p, q = quad[i], quad[(i + 1) % 4]
-        side = float(np.linalg.norm(q - p))
-        if side < MIN_SIDE_PX:
-            return None
-        edges = _side_edge_points(blurred, p, q, min(radius, 0.15 * side), valid)
+        edges = _side_edge_points(blurred, quad[i], quad[(i + 1) % 4], min(radius, 0.15 * sides[i]), valid)
         lines.append(None if edges is None else _fit_line(edges))
+        if any(ln is None for ln in lines) and sum(not _completable(ln) for ln in lines) >= 2:
+            return lines + [None] * (3 - i)
     return lines
+
+
+def _completable(line: _Line | None) -> bool:
+    """Whether a fitted side is good enough to complete a sheet from (``_complete_sheet``)."""
+    return line is not None and line.coverage >= COMPLETION_MIN_COVERAGE and line.support >= COMPLETION_MIN_SUPPORT
 
 
 def _refine_sides(
@@ -908,17 +918,14 @@ def _complete_sheet(
     """Quads (4, 2) px for a sheet of which three sides show and the fourth is hidden or cut short (the foot over
     a corner): the two corners on the three sides' lines that are not their intersections are placed so that
     the four make a rectangle of A4's proportions (metric, with K), for either side being the long one.
-    ``lines``: ``_fit_sides(quad, ..., 3.0)`` when the caller already has it."""
+    ``lines``: ``_fit_sides(quad, ..., FIRST_RADIUS_PX)`` when the caller already has it."""
     from scipy.optimize import least_squares
 
     if lines is None:
         lines = _fit_sides(quad, blurred, valid, FIRST_RADIUS_PX)
     if lines is None:
         return []
-    good = [
-        ln is not None and ln.coverage >= COMPLETION_MIN_COVERAGE and ln.support >= COMPLETION_MIN_SUPPORT
-        for ln in lines
-    ]
+    good = [_completable(ln) for ln in lines]
     if sum(good) != 3:
         return []
     m = good.index(False)  # the missing side, from corner m to corner m + 1
