@@ -119,8 +119,8 @@ def test_scaling_the_scene_scales_the_mesh_exactly():
 def test_spatial_centroid_lies_on_the_ray_of_its_soft_argmax_pixel():
     """The centroid projects onto the soft-argmax pixel of the centre map, whatever the intrinsics."""
     torch.manual_seed(3)
-    net = ReconNet(TINY).eval()
-    assert TINY.centre_head == "spatial" and net.centre_map is not None
+    net = ReconNet(replace(TINY, centre_head="spatial")).eval()
+    assert net.centre_map is not None and net.surface_map is None
     with torch.no_grad():
         net.centre_map.weight.normal_(0.0, 3.0)  # a peaked map somewhere off the image centre
     rgb, depth = scene()
@@ -142,6 +142,29 @@ def test_spatial_centroid_lies_on_the_ray_of_its_soft_argmax_pixel():
     assert glob.centre_map is None
     with pytest.raises(ValueError, match="centre_head"):
         replace(TINY, centre_head="middle")
+
+
+@pytest.mark.parametrize("kind", ["rgbd", "depth"])
+def test_anchored_centroid_reads_its_depth_off_the_depth_map(kind):
+    """At the start (uniform surface map, zero offset) the centroid's depth is the mean over the stride-8 cells
+    with measured depth of each cell's mean depth, in mm, whatever the encoder computes."""
+    torch.manual_seed(5)
+    net = ReconNet(replace(TINY, input=kind)).eval()
+    assert TINY.centre_head == "anchored" and net.surface_map is not None
+    rgb, depth = scene()
+    depth[:, :, :24] = 0.0  # a third of the map missing: those cells do not count
+    x, ref = recon_input(kind, rgb, depth)
+    with torch.no_grad():
+        out = net(x, camera(b=2), ref)
+    cells = SIZE // 8
+    for b in range(2):
+        d = depth[b, 0]
+        valid = (d > 0) & (d != ref[b])  # (a pixel at exactly the median reads as missing: relative depth 0)
+        total = torch.where(valid, d, 0.0).view(cells, 8, cells, 8).sum((1, 3))
+        count = valid.view(cells, 8, cells, 8).sum((1, 3))
+        want = (total[count > 0] / count[count > 0]).mean()
+        assert torch.allclose(out.centre[b, 2], want, rtol=1e-4), (out.centre[b, 2], want)
+    assert ReconNet(replace(TINY, input="rgb")).surface_map is None
 
 
 def test_rgb_focal_length_sets_the_depth():
