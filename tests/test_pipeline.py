@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 
 import cv2
 import numpy as np
@@ -156,6 +157,28 @@ def test_a_plain_photo_of_a_foot_seen_end_on_is_refused(tmp_path):
     with pytest.raises(PipelineError, match="seen end-on"):
         measure_photo(ex.image, tmp_path, intrinsics=ex.intrinsics, config=strict)
     assert not (tmp_path / "result.json").exists()
+
+
+@pytest.mark.slow
+def test_an_rgbd_photo_of_a_foot_seen_end_on_is_refused(tmp_path):
+    """Toes towards the camera (long axis 31 deg from the line of sight): the heel is hidden behind the foot, and
+    its length would be made up."""
+    from footmesh.synth.render import Renderer
+    from footmesh.synth.scene import SynthConfig
+
+    sample = Renderer(SynthConfig(size=480, reference="none", frame_reference=True)).render(99, 2)
+    axis, centre = sample["cam_from_foot"][:3, 0], sample["vertices"].mean(axis=0)
+    assert abs(axis @ centre) / np.linalg.norm(centre) > math.cos(math.radians(35))  # really end-on
+    cv2.imwrite(str(tmp_path / "photo.png"), sample["rgb"][..., ::-1])
+    cv2.imwrite(str(tmp_path / "depth.png"), sample["depth"])
+    K = sample["K"]
+    k_json = {"fx": K[0, 0], "fy": K[1, 1], "cx": K[0, 2], "cy": K[1, 2], "width": 480, "height": 480}
+    (tmp_path / "K.json").write_text(json.dumps(k_json))
+    with pytest.raises(PipelineError, match="seen end-on .* far end of the foot is hidden"):
+        measure_photo(
+            tmp_path / "photo.png", tmp_path / "out", depth=tmp_path / "depth.png", intrinsics=tmp_path / "K.json"
+        )
+    assert not (tmp_path / "out" / "result.json").exists()
 
 
 @pytest.mark.slow

@@ -251,16 +251,21 @@ def run_pipeline(photo: Photo, side: str, config: MeasureConfig, input: str = "a
         config=FitConfig(joint_sigma_px=joint_sigma_px(located.crop.side, config)),
     )
     timings["fit_s"] = time.perf_counter() - t
-    if kind == "rgb":
-        axis = fit.cam_from_foot[:3, 0]  # the foot's heel-to-toe direction in the camera frame
-        centre = fit.vertices_cam.mean(axis=0)
-        end_on = abs(float(axis @ centre)) / float(np.linalg.norm(centre))
-        if end_on > config.max_rgb_end_on:
-            raise PipelineError(
-                f"the foot is seen end-on (its length points {math.degrees(math.acos(end_on)):.0f} deg from the "
-                "line of sight), so its length cannot be measured from a plain photo; photograph it from the side "
-                "and above"
-            )
+    axis = fit.cam_from_foot[:3, 0]  # the foot's heel-to-toe direction in the camera frame
+    centre = fit.vertices_cam.mean(axis=0)
+    end_on = abs(float(axis @ centre)) / float(np.linalg.norm(centre))
+    end_on_deg = math.degrees(math.acos(min(end_on, 1.0)))
+    if kind == "rgb" and end_on > config.max_rgb_end_on:
+        raise PipelineError(
+            f"the foot is seen end-on (its length points {end_on_deg:.0f} deg from the line of sight), so its "
+            "length cannot be measured from a plain photo; photograph it from the side and above"
+        )
+    if kind != "rgb" and end_on > config.max_depth_end_on:
+        raise PipelineError(
+            f"the foot is seen end-on (its length points {end_on_deg:.0f} deg from the line of sight), so the far "
+            "end of the foot is hidden behind the near one and its length cannot be measured; photograph it from "
+            "the side and above"
+        )
     outside = fit.quality.get("vertices_outside_2px", 0.0)
     if outside > config.max_model_outside:
         raise PipelineError(
