@@ -121,6 +121,24 @@ def test_evaluate_scores_every_sample_and_viewpoint(views_data, weights):
     assert table[("X", 0)][:2] == pytest.approx((x0.mean(), x0.std()))
 
 
+def test_samples_without_any_depth_are_left_out_and_counted(views_data, weights, monkeypatch):
+    """A view from below the one-sided floor can leave a depth map empty: depth inputs skip it and say so."""
+    read = SynthDataset.__getitem__
+
+    def blind(self, i):
+        sample = read(self, i)
+        return {**sample, "depth": np.zeros_like(sample["depth"])} if i == 3 else sample
+
+    monkeypatch.setattr(SynthDataset, "__getitem__", blind)
+    scores = evaluate(views_data, "rgbd", weights["rgbd"])
+    assert scores.samples == NUM_THESIS_VIEWS - 1 and scores.no_depth == 1
+    assert scores.summary()["left_out_no_depth"] == 1
+    rgb = evaluate(views_data, "rgb", weights["rgb"])
+    assert rgb.samples == NUM_THESIS_VIEWS and rgb.no_depth == 0
+    text = format_tables({"rgbd": scores}, {"rgbd": scores})
+    assert "1 without any depth pixel left out for rgbd" in text
+
+
 def test_tables_put_ours_beside_the_thesis_and_label_rgb(views_data, weights, tmp_path):
     out = tmp_path / "r.json"
     text = run_eval(

@@ -53,6 +53,8 @@ class ReconScores:
     view_id: list[int] = field(default_factory=list)
     seconds: float = 0.0
     latency_ms: dict[str, float] = field(default_factory=dict)
+    no_depth: int = 0
+    """Samples left out because their depth map holds no valid pixel (views from below the floor), depth inputs."""
 
     @property
     def samples(self) -> int:
@@ -64,6 +66,7 @@ class ReconScores:
             "input": self.input,
             "kind": self.kind,
             "samples": self.samples,
+            "left_out_no_depth": self.no_depth,
             "chamfer_mm": _mean(self.chamfer),
             "ms_per_image": 1000 * self.seconds / max(self.samples, 1),
             "latency_ms_batch1": dict(self.latency_ms),
@@ -167,6 +170,13 @@ def evaluate(
     size = config.image_size
     for start in range(0, n, batch):
         samples = [dataset[i] for i in range(start, min(start + batch, n))]
+        if input_kind != "rgb":
+            # a depth map without a single valid pixel (a view from below the one-sided floor) gives no scale
+            with_depth = [s for s in samples if (s["depth"] > 0).any()]
+            scores.no_depth += len(samples) - len(with_depth)
+            samples = with_depth
+            if not samples:
+                continue
         rgbs, depths, ks = [], [], []
         for s in samples:
             r, d = resize_inputs(s["rgb"], s["depth"].astype(np.float32), size)
@@ -325,11 +335,16 @@ def format_tables(
     if view_results:
         vkinds = [k for k in INPUTS if k in view_results]
         tables = {k: view_table(view_results[k]) for k in vkinds}
-        n_views = view_results[vkinds[0]].samples
+        n_views = max(view_results[k].samples for k in vkinds)
+        left_out = "".join(
+            f"; {view_results[k].no_depth} without any depth pixel left out for {k}"
+            for k in vkinds
+            if view_results[k].no_depth
+        )
         lines += [
             "",
-            f"Table 4.6: 3D joint error per thesis viewpoint, mean (SD) over all joints, mm ({n_views} images; "
-            "ours | thesis)",
+            f"Table 4.6: 3D joint error per thesis viewpoint, mean (SD) over all joints, mm ({n_views} images"
+            f"{left_out}; ours | thesis)",
             "",
             "| axis | deg | " + " | ".join(f"{k} ours | {k} thesis" for k in vkinds) + " |",
             "|---|---:|" + "---:|---:|" * len(vkinds),
@@ -337,9 +352,9 @@ def format_tables(
         for key in sorted(tables[vkinds[0]], key=lambda a: (a[0], a[1])):
             cells = []
             for k in vkinds:
-                m, sd, _ = tables[k][key]
                 tm, tsd = thesis.JOINT_MM_BY_VIEW[key][k]
-                cells.append(f"{m:.2f} ({sd:.2f}) | {tm:.2f} ({tsd:.2f})")
+                ours = f"{tables[k][key][0]:.2f} ({tables[k][key][1]:.2f})" if key in tables[k] else "-"
+                cells.append(f"{ours} | {tm:.2f} ({tsd:.2f})")
             lines.append(f"| {key[0]} | {key[1]} | " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
