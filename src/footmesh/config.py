@@ -230,7 +230,7 @@ class MeasureConfig:
     """Photos with depth are refused when the fitted long axis points within acos(this) = 50 deg of the line of
     sight: depth sees along it, but the far end of the foot (the heel, when the toes face the camera) is hidden
     behind the near one and the fit makes it up (random-view eval, seed 4242, RGB-D and depth: 4 of the 7 photos
-    within 50 deg off by 11-28 mm, 2 of the 33 others by more than 10 mm)."""
+    within 50 deg off by 11-28 mm, 1 of the 32 others by more than 10 mm)."""
     joint_sigma_224_px: float = 3.0
     """Expected error of a network's 2D joint, in pixels of its crop resized to 224 px (the networks' mean error
     there is 3-4 px); the fit's joint sigma is this times crop side / 224, in working pixels. Against a fixed 3
