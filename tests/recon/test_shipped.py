@@ -11,9 +11,9 @@ import numpy as np
 import pytest
 import torch
 
-from footmesh.cues.predict import resize_inputs
+from footmesh.eval.recon import network_inputs
 from footmesh.recon.joints import joints_from_vertices, midfoot_aligned_error
-from footmesh.recon.model import predict_batch, resize_intrinsics
+from footmesh.recon.model import predict_batch
 from footmesh.recon.weights import network_for
 from footmesh.synth.render import Renderer
 from footmesh.synth.scene import SynthConfig
@@ -35,20 +35,8 @@ def rendered() -> list[dict]:
 
 def _predict(kind: str, samples: list[dict]):
     model, config = network_for(kind)
-    size = config.image_size
-    rgbs, depths, ks = [], [], []
-    for s in samples:
-        r, d = resize_inputs(s["rgb"], s["depth"].astype(np.float32), size)
-        rgbs.append(r)
-        depths.append(d)
-        ks.append(resize_intrinsics(s["K"], s["rgb"].shape[0], size))
     with torch.inference_mode():
-        return predict_batch(
-            model,
-            np.stack(rgbs) if kind != "depth" else None,
-            np.stack(depths) if kind != "rgb" else None,
-            np.stack(ks),
-        )
+        return predict_batch(model, *network_inputs(samples, kind, config.image_size))
 
 
 @pytest.mark.parametrize("kind", sorted(BOUNDS))

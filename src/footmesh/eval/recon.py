@@ -141,6 +141,25 @@ def chamfer_mm(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
 # --- evaluation ---------------------------------------------------------------------------------------------------
 
 
+def network_inputs(
+    samples: list[dict], input_kind: str, size: int
+) -> tuple[np.ndarray | None, np.ndarray | None, np.ndarray]:
+    """Synthetic samples resized to the network's side as in training: rgb (B, S, S, 3) uint8 and depth (B, S, S)
+    mm (None where ``input_kind`` does not use them) and K (B, 3, 3) px of that side, for ``predict_batch``."""
+    from footmesh.cues.predict import resize_inputs
+    from footmesh.recon.model import resize_intrinsics
+
+    rgbs, depths, ks = [], [], []
+    for s in samples:
+        r, d = resize_inputs(s["rgb"], s["depth"].astype(np.float32), size)
+        rgbs.append(r)
+        depths.append(d)
+        ks.append(resize_intrinsics(s["K"], s["rgb"].shape[0], size))
+    rgb = np.stack(rgbs) if input_kind != "depth" else None
+    depth = np.stack(depths) if input_kind != "rgb" else None
+    return rgb, depth, np.stack(ks)
+
+
 def evaluate(
     data: str | os.PathLike,
     input_kind: str,
@@ -155,8 +174,7 @@ def evaluate(
         weights: a ``weights.pt`` of ``footmesh train recon`` (ISM or EdgeConv) instead of the shipped one.
         limit: evaluate only the first ``limit`` samples.
     """
-    from footmesh.cues.predict import resize_inputs
-    from footmesh.recon.model import predict_batch, resize_intrinsics
+    from footmesh.recon.model import predict_batch
     from footmesh.recon.weights import load_network, packaged_weights
     from footmesh.synth.dataset import SynthDataset
 
@@ -177,19 +195,9 @@ def evaluate(
             samples = with_depth
             if not samples:
                 continue
-        rgbs, depths, ks = [], [], []
-        for s in samples:
-            r, d = resize_inputs(s["rgb"], s["depth"].astype(np.float32), size)
-            rgbs.append(r)
-            depths.append(d)
-            ks.append(resize_intrinsics(s["K"], s["rgb"].shape[0], size))
+        rgb, depth, K = network_inputs(samples, input_kind, size)  # noqa: N806
         t0 = time.perf_counter()
-        out = predict_batch(
-            model,
-            np.stack(rgbs) if input_kind != "depth" else None,
-            np.stack(depths) if input_kind != "rgb" else None,
-            np.stack(ks),
-        )
+        out = predict_batch(model, rgb, depth, K)
         scores.seconds += time.perf_counter() - t0
         true_v = torch.from_numpy(np.stack([s["vertices"] for s in samples]).astype(np.float32))
         true_j = torch.from_numpy(np.stack([s["joints3d"] for s in samples]).astype(np.float32))
