@@ -170,6 +170,17 @@ def test_covariance_is_symmetric_positive_and_sampled(depth_fits):
     np.testing.assert_allclose(np.cov(shapes.T), fit.shape_covariance, atol=0.2 * np.abs(fit.shape_covariance).max())
 
 
+def test_sigma_points_carry_the_covariance_through_a_linear_function(depth_fits):
+    _, fit = depth_fits[0]
+    plus, minus = fit.shape_sigma_points()
+    k = len(fit.shape)
+    assert plus.shape == minus.shape == (k, k)
+    np.testing.assert_allclose(0.5 * (plus + minus), np.broadcast_to(fit.shape, (k, k)), atol=1e-12)
+    weights = np.random.default_rng(3).normal(size=(5, k))  # five linear functions of the shape
+    sd = np.sqrt(np.sum((0.5 * (plus - minus) @ weights.T) ** 2, axis=0))
+    np.testing.assert_allclose(sd, np.sqrt(np.einsum("fi,ij,fj->f", weights, fit.shape_covariance, weights)))
+
+
 def test_angles_stay_inside_the_limits(depth_fits, floor_fits, bare_fits):
     for _, fit in depth_fits + floor_fits + bare_fits:
         assert np.all(fit.angles >= LOWER) and np.all(fit.angles <= UPPER)

@@ -247,7 +247,6 @@ class MeasureConfig:
     """Refuse the photo when more than this fraction of the fitted model's visible vertices fall more than 2 px
     outside the foot's silhouette (``FootFit.quality``): the fit went wrong and its millimetres would be too. Good
     fits on the synthetic eval: 0.01-0.08; the gross failures (50-140 mm off): 0.5-0.9."""
-    uncertainty_samples: int = 48
     uncertainty_factor: dict[str, float] = field(
         default_factory=lambda: {"depth": 2.1, "a4": 2.9, "card": 2.9, "marker": 2.9}
     )

@@ -256,6 +256,14 @@ class FootFit:
         rng = np.random.default_rng(rng)
         return rng.multivariate_normal(self.shape, self.shape_covariance, size=n, method="eigh")
 
+    def shape_sigma_points(self) -> np.ndarray:
+        """(2, K, K) shape coefficients one SD either way ([0]: +, [1]: -) along each principal axis of
+        ``shape_covariance``: a function f of the shape has SD ~ sqrt(sum_k ((f(+k) - f(-k)) / 2)^2), exact when f
+        is linear (central differences; 2K evaluations instead of many samples)."""
+        variance, axes = np.linalg.eigh(self.shape_covariance)
+        steps = (axes * np.sqrt(np.clip(variance, 0.0, None))).T  # (K, K): row k = SD_k * axis_k
+        return np.stack([self.shape + steps, self.shape - steps])
+
     def canonical_vertices(self, model: FootModel | None = None) -> np.ndarray:
         """(V, 3) mm, the fitted shape in the zero pose, foot frame of its side (what ``measure`` takes)."""
         model = model if model is not None else default_model()

@@ -358,21 +358,24 @@ def _reference_dict(reference, to_photo: float) -> dict:
 
 def measurement_uncertainty(fit, measured: Measurements, scale_source: str, reference, model, config) -> dict:
     """One-SD uncertainty (mm) of each measurement: the fit's shape covariance propagated through the
-    measurements (shape samples), times the calibration factor of the scale source (``MeasureConfig``), and
-    the reference object's scale uncertainty."""
-    rng = np.random.default_rng(0)
-    shapes = fit.sample_shapes(config.uncertainty_samples, rng)
-    values = []
+    measurements (central differences along its principal axes, ``FootFit.shape_sigma_points``), times the
+    calibration factor of the scale source (``MeasureConfig``), and the reference object's scale uncertainty."""
+    points = fit.shape_sigma_points()  # (2, K, K)
     faces = model.faces(fit.side).numpy()
     with torch.no_grad():
-        out = model(torch.as_tensor(shapes, dtype=torch.float32), side=fit.side)
-    for v, j in zip(out.vertices.double().numpy(), out.joints.double().numpy(), strict=True):
+        out = model(torch.as_tensor(points.reshape(-1, points.shape[-1]), dtype=torch.float32), side=fit.side)
+    values = np.full((points.shape[0] * points.shape[1], len(MEASUREMENT_NAMES)), np.nan)
+    for i, (v, j) in enumerate(zip(out.vertices.double().numpy(), out.joints.double().numpy(), strict=True)):
         try:
             m = measure_foot(v, faces, FootLandmarks.from_joints(j), side=fit.side)
-        except ValueError:
+        except ValueError:  # a shape too odd to measure: that side of the axis falls back on the other
             continue
-        values.append([m.values_mm()[n] for n in MEASUREMENT_NAMES])
-    sd = np.std(np.asarray(values, float), axis=0) if len(values) > 2 else np.full(len(MEASUREMENT_NAMES), np.nan)
+        values[i] = [m.values_mm()[n] for n in MEASUREMENT_NAMES]
+    plus, minus = values.reshape(2, points.shape[1], -1)  # (K, M) each
+    centre = np.array([measured.values_mm()[n] for n in MEASUREMENT_NAMES], dtype=float)
+    one_sided = np.fmax(np.abs(plus - centre), np.abs(minus - centre))
+    half = np.where(np.isnan(plus) | np.isnan(minus), one_sided, 0.5 * np.abs(plus - minus))
+    sd = np.sqrt(np.nansum(half**2, axis=0))
     factor = config.uncertainty_factor.get(scale_source, 1.0)
     floor = config.uncertainty_floor_mm
     rel = float(reference.scale_rel_sd) if reference is not None else 0.0

@@ -131,6 +131,8 @@ MAX_HIDDEN_AREA_RATIO = 2.0
 
 _MIN_REGION_AREA_PX = 120.0
 _THRESHOLD_LEVELS = 9
+SEARCH_SIDE_PX = 640
+"""Images larger than this (shorter side, px) are searched for a card's candidate regions at this size."""
 _KERNEL3 = np.ones((3, 3), np.uint8)
 _KERNEL5 = np.ones((5, 5), np.uint8)
 _COMBINATIONS = {n: np.array(list(itertools.combinations(range(n), 4))) for n in range(4, MAX_HULL_SIDES + 1)}
@@ -236,23 +238,49 @@ def detect_reference(
     sheets = [(q - q.mean(axis=0)) * MARKER_SHEET_SCALE + q.mean(axis=0) for q in markers]
     best: dict[str, tuple[float, ReferenceObject]] = {}
     accepted: list[np.ndarray] = []  # corners already found, in canonical order
-    for quad in _candidate_quads(blurred, K, wanted):
+    seen: set[tuple[int, ...]] = set()  # rough quads already listed (both searches)
+    # a sheet wins over any card: once one is found, the candidates left (most of the time spent on those that
+    # are none) are not tried. Sheets with a hidden corner completed come last, only when no card was found.
+    sheet = _candidate_groups(blurred, K, wanted, "sheet", seen) if "a4" in wanted else []
+    card = _candidate_groups(blurred, K, wanted, "card", seen) if "card" in wanted else []
+    for group in sheet[:1] + card:
+        _try_candidates(group, wanted, blurred, K, valid, sheets, accepted, best)
+        if "a4" in best:
+            return best["a4"][1]
+    if "card" in best:
+        return best["card"][1]
+    for group in sheet[1:]:
+        _try_candidates(group, wanted, blurred, K, valid, sheets, accepted, best)
+        if "a4" in best:
+            return best["a4"][1]
+    return None
+
+
+def _try_candidates(
+    quads: list[np.ndarray],
+    kinds: list[str],
+    blurred: np.ndarray,
+    K: np.ndarray,
+    valid: np.ndarray | None,
+    sheets: list[np.ndarray],
+    accepted: list[np.ndarray],
+    best: dict[str, tuple[float, ReferenceObject]],
+) -> None:
+    """Refine and test rough quads in turn, keeping the best-scoring object of each kind in ``best`` and the
+    corners of every accepted one in ``accepted`` (both updated)."""
+    for quad in quads:
         # many thresholds give the same object: refine it once
         if any(np.max(np.linalg.norm(quad - corners, axis=1)) < 3.0 for corners in accepted):
             continue
         if any(_overlaps(quad, sheet) for sheet in sheets):
             continue
-        result = _finish(quad, wanted, blurred, K, valid)
+        result = _finish(quad, kinds, blurred, K, valid)
         if result is None:
             continue
         accepted.append(_canonical(result[1].corners_px))
         score, obj = result
         if obj.kind not in best or score > best[obj.kind][0]:
             best[obj.kind] = (score, obj)
-    for kind in ("a4", "card"):
-        if kind in best:
-            return best[kind][1]
-    return None
 
 
 # --- input checks -------------------------------------------------------------------------------------------
@@ -337,22 +365,39 @@ def _overlaps(quad: np.ndarray, region: np.ndarray) -> bool:
 # --- candidate quadrilaterals -------------------------------------------------------------------------------
 
 
-def _candidate_quads(blurred: np.ndarray, K: np.ndarray, kinds: list[str]) -> list[np.ndarray]:
-    """Rough (4, 2) px quadrilaterals (canonical order) that might be a sheet or a card, near duplicates removed."""
+def _candidate_groups(
+    blurred: np.ndarray, K: np.ndarray, kinds: list[str], regions: str, seen: set[tuple[int, ...]]
+) -> list[list[np.ndarray]]:
+    """Rough (4, 2) px quadrilaterals (canonical order) that might be one of ``kinds``, from the outlines of
+    ``regions``: "sheet" (bright in every channel) or "card" (thresholds of the grey level and of each channel,
+    either way, and edges); in groups to try in turn: the quads the outlines make, then (sheets) those made by
+    completing a hidden corner. Near duplicates of each other and of the keys in ``seen`` (updated) are left out."""
+    if regions not in ("sheet", "card"):
+        raise ValueError(f"regions must be 'sheet' or 'card', got {regions!r}")
     h, w = blurred.shape[:2]
-    grey = blurred.mean(axis=2)
+    # a card's regions are outlined at a coarser scale (the refinement works at full resolution): most of the
+    # time of its search goes into thresholds and outlines, and a rough quad within a pixel or two is all it
+    # needs. A sheet's are not: its sides' refinement from a rough quad that far off sometimes settles on
+    # another edge (its shadow), up to 1.8 px off on the eval photos.
+    scale = max(1.0, min(h, w) / SEARCH_SIDE_PX) if regions == "card" else 1.0
+    small = blurred
+    if scale > 1.0:
+        small = cv2.resize(blurred, (round(w / scale), round(h / scale)), interpolation=cv2.INTER_AREA)
+    to_full = np.array([w / small.shape[1], h / small.shape[0]], np.float32)  # small px -> px, per axis
+    grey = small.mean(axis=2)
     # a sheet's region is opened wide as well (white grout and other thin lines joined to it fall away), a card's
     # closed (over its stripe)
-    wide = np.ones((2 * (min(h, w) // 200) + 5,) * 2, np.uint8)
+    wide = np.ones((int(round((2 * (min(h, w) // 200) + 5) / scale)) | 1,) * 2, np.uint8)
     features: list[tuple[np.ndarray, str]] = []
-    if "a4" in kinds:
-        features.append((blurred.min(axis=2), "sheet"))  # paper: every channel high; skin, wood, most floors: not
-    if "card" in kinds:
-        for f in (grey, blurred[..., 0], blurred[..., 1], blurred[..., 2]):
+    if regions == "sheet":
+        features.append((small.min(axis=2), "sheet"))  # paper: every channel high; skin, wood, most floors: not
+    else:
+        for f in (grey, small[..., 0], small[..., 1], small[..., 2]):
             features.extend([(f, "card"), (-f, "card")])
     outlines: list[tuple[tuple, bool]] = []  # (contours, whether a sheet's: the largest pieces also together)
+    stride = max(1, int(round(4 / scale)))
     for feature, use in features:
-        lo, hi = np.percentile(feature[::4, ::4], [1.0, 99.5])
+        lo, hi = np.percentile(feature[::stride, ::stride], [1.0, 99.5])
         if hi - lo < MIN_CONTRAST:
             continue
         for level in np.linspace(lo, hi, _THRESHOLD_LEVELS + 2)[1:-1]:
@@ -364,7 +409,7 @@ def _candidate_quads(blurred: np.ndarray, K: np.ndarray, kinds: list[str]) -> li
             else:
                 binary = cv2.morphologyEx(binary, cv2.MORPH_CLOSE, _KERNEL5)
                 outlines.append((cv2.findContours(binary, cv2.RETR_LIST, cv2.CHAIN_APPROX_NONE)[0], False))
-    if "card" in kinds:
+    if regions == "card":
         u8 = (grey * 255.0 + 0.5).astype(np.uint8)
         for low, high in ((10, 30), (25, 75)):
             edges = cv2.dilate(cv2.Canny(u8, low, high, L2gradient=True), _KERNEL3)
@@ -372,8 +417,10 @@ def _candidate_quads(blurred: np.ndarray, K: np.ndarray, kinds: list[str]) -> li
 
     # (simplified hull, its area, outline points, whether a sheet's)
     polygons: list[tuple[np.ndarray, float, np.ndarray, bool]] = []
+    min_length, min_area = 20 / scale, _MIN_REGION_AREA_PX / scale**2
     for contours, sheet in outlines:
-        big = [c for c in contours if len(c) >= 20 and cv2.contourArea(c) >= _MIN_REGION_AREA_PX]
+        big = [c for c in contours if len(c) >= min_length and cv2.contourArea(c) >= min_area]
+        big = [(c.astype(np.float32) + 0.5) * to_full - 0.5 for c in big]  # pixel centres, in px of the image
         groups = [(c, cv2.contourArea(c)) for c in big]
         if sheet and len(big) > 1:
             # a leg across a sheet under the foot cuts its white region in two or three: try them together
@@ -398,7 +445,6 @@ def _candidate_quads(blurred: np.ndarray, K: np.ndarray, kinds: list[str]) -> li
     keep = np.isfinite(rough).all(axis=(1, 2))
     rough, source = rough[keep], source[keep]
     passed = _classify_many(rough, K, ["a4", "card"], 2 * LOOSE_FACTOR)
-    seen: set[tuple[int, ...]] = set()
     quads: list[np.ndarray] = []
     if passed.any():
         shape_ok, src = rough[passed], source[passed]
@@ -415,9 +461,12 @@ def _candidate_quads(blurred: np.ndarray, K: np.ndarray, kinds: list[str]) -> li
             if key not in seen:
                 seen.add(key)
                 quads.append(quad)
-    if "a4" in kinds:
+    groups = [quads]
+    if "a4" in kinds and regions == "sheet":
         # a sheet's region with a corner hidden (the foot, the leg) is no rectangle's image: complete it from three
         # of its sides, and try it after the others
+        quads = []
+        groups.append(quads)
         big = np.array([polygons[i][3] and polygons[i][1] >= SHEET_MIN_AREA * h * w for i in source])
         todo = ~passed & big
         if todo.any():
@@ -432,7 +481,7 @@ def _candidate_quads(blurred: np.ndarray, K: np.ndarray, kinds: list[str]) -> li
                     if key not in seen:
                         seen.add(key)
                         quads.append(quad)
-    return quads
+    return groups
 
 
 def _complete_many(quads: np.ndarray, region_area: np.ndarray, K: np.ndarray, h: int, w: int) -> np.ndarray:
@@ -593,8 +642,16 @@ def _signed_area(quad: np.ndarray) -> float:
 
 def _canonical(quad: np.ndarray) -> np.ndarray | None:
     """Convex quad with negative signed area, starting at its top-left-most corner; None if not convex."""
-    out = _canonical_many(quad[None])[0]
-    return None if np.isnan(out).any() else out
+    # ``_canonical_many`` of one quad, in plain floats: the candidate search calls it thousands of times
+    q = [(float(x), float(y)) for x, y in quad]
+    area = sum(q[i][0] * q[(i + 1) % 4][1] - q[(i + 1) % 4][0] * q[i][1] for i in range(4))
+    if area > 0:
+        q = q[::-1]
+    edges = [(q[(i + 1) % 4][0] - q[i][0], q[(i + 1) % 4][1] - q[i][1]) for i in range(4)]
+    if not all(edges[i][0] * edges[(i + 1) % 4][1] - edges[i][1] * edges[(i + 1) % 4][0] < 0 for i in range(4)):
+        return None
+    start = min(range(4), key=lambda i: q[i][0] + q[i][1])
+    return np.array(q[start:] + q[:start])
 
 
 def _canonical_many(quads: np.ndarray) -> np.ndarray:
@@ -640,8 +697,34 @@ def _parallelogram_many(quads: np.ndarray, K: np.ndarray) -> tuple[np.ndarray, n
 
 def _parallelogram(quad: np.ndarray, K: np.ndarray) -> tuple[float, float, np.ndarray] | None:
     """``_parallelogram_many`` of one (4, 2) quad: (side ratio, angle in degrees, (4,) depths) or None."""
-    ratio, angle, depths, good = _parallelogram_many(quad[None], K)
-    return (float(ratio[0]), float(angle[0]), depths[0]) if good[0] else None
+    # in plain floats (Cramer's rule): the search and the sheet completion call it tens of thousands of times
+    fx, skew, cx, fy, cy = float(K[0, 0]), float(K[0, 1]), float(K[0, 2]), float(K[1, 1]), float(K[1, 2])
+    rays = []
+    for u, v in quad:
+        y = (float(v) - cy) / fy
+        rays.append(((float(u) - cx - skew * y) / fx, y, 1.0))
+    (r0, r1, r2, r3) = rays
+    m2 = (-r2[0], -r2[1], -r2[2])
+
+    def det(a: tuple, b: tuple, c: tuple) -> float:  # columns a, b, c
+        return (
+            a[0] * (b[1] * c[2] - b[2] * c[1]) - b[0] * (a[1] * c[2] - a[2] * c[1]) + c[0] * (a[1] * b[2] - a[2] * b[1])
+        )
+
+    d = det(r1, m2, r3)
+    if not abs(d) > 1e-12:
+        return None
+    lam = (det(r0, m2, r3) / d, det(r1, r0, r3) / d, det(r1, m2, r0) / d)
+    if not min(lam) > 0:
+        return None
+    p0, p1, p3 = r0, [lam[0] * c for c in r1], [lam[2] * c for c in r3]
+    a = [p1[i] - p0[i] for i in range(3)]
+    b = [p3[i] - p0[i] for i in range(3)]
+    na, nb = math.sqrt(sum(x * x for x in a)), math.sqrt(sum(x * x for x in b))
+    if not (na > 0 and nb > 0 and math.isfinite(na * nb)):
+        return None
+    cos = min(max(sum(a[i] * b[i] for i in range(3)) / (na * nb), -1.0), 1.0)
+    return na / nb, math.degrees(math.acos(cos)), np.array([1.0, *lam])
 
 
 def _classify_many(quads: np.ndarray, K: np.ndarray, kinds: list[str], loose: float) -> np.ndarray:
@@ -739,7 +822,10 @@ def _profiles(
         min_step = max(MIN_CONTRAST, 0.5 * float(np.median(size[size >= np.median(size)])))
     if size.max() < min_step:
         return None
-    grad = np.linalg.norm(np.gradient(values, step, axis=1), axis=2)  # (S, O)
+    # central differences (np.gradient's, without its one-sided ends, which lie beyond the window)
+    diff = values[:, 2:] - values[:, :-2]
+    grad = np.zeros(values.shape[:2], values.dtype)  # (S, O)
+    grad[:, 1:-1] = np.sqrt(np.sum(diff * diff, axis=2)) / (2.0 * step)
     window = np.flatnonzero(np.abs(across) <= radius + 1e-9)
     k = window[0] + np.argmax(grad[:, window], axis=1)
     rows = np.arange(len(along))
