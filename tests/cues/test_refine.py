@@ -43,6 +43,14 @@ def test_a_smoothed_shrunken_outline_snaps_to_the_photos_edges(photos):
     assert max(after) > 0.98, after
 
 
+def test_the_same_photo_is_refined_the_same_whatever_came_before(photos):
+    # GrabCut's colour models start from k-means on OpenCV's random generator, whose state other calls advance
+    coarse = [network_like(s["silhouette"].astype(bool)) for s in photos]
+    first = [refine_silhouette(s["rgb"], c) for s, c in zip(photos, coarse, strict=True)]
+    for s, c, f in zip(photos[::-1], coarse[::-1], first[::-1], strict=True):
+        np.testing.assert_array_equal(refine_silhouette(s["rgb"], c), f)
+
+
 def test_untrusted_cuts_and_empty_silhouettes_are_left_alone(photos):
     s = photos[0]
     coarse = network_like(s["silhouette"].astype(bool))

@@ -62,6 +62,9 @@ def refine_silhouette(rgb: np.ndarray, silhouette: np.ndarray, config: RefineCon
     labels[cv2.dilate(inside, _disc(config.band_out_px)) == 0] = cv2.GC_BGD
     background, foreground = np.zeros((1, 65)), np.zeros((1, 65))
     bgr = np.ascontiguousarray(rgb[y0:y1, x0:x1, ::-1])
+    # GrabCut seeds its colour models by k-means on OpenCV's random generator (per thread), whose state every
+    # earlier call advances: seeded here, a photo's silhouette does not depend on what was measured before it
+    cv2.setRNGSeed(0)
     try:
         cv2.grabCut(bgr, labels, None, background, foreground, config.iterations, cv2.GC_INIT_WITH_MASK)
     except cv2.error:  # e.g. a band with no colour variety to model: keep the network's outline
