@@ -10,6 +10,7 @@ import cv2
 import numpy as np
 import pytest
 
+from footmesh.cues import reference
 from footmesh.cues.reference import SIZES_MM, ReferenceObject, detect_reference
 from footmesh.synth import textures
 from footmesh.synth.render import Renderer
@@ -195,6 +196,25 @@ def test_metric_shape_names_the_object():
     for length, width in ((280.0, 210.0), (300.0, 150.0), (200.0, 200.0)):
         rgb, K, _ = _drawn_rectangle(length, width)
         assert detect_reference(rgb, K) is None, (length, width)
+
+
+def test_one_quad_shape_tests_agree_with_the_vectorised_ones():
+    """``_parallelogram`` and ``_canonical`` (plain floats, for speed) give what their vectorised versions give."""
+    rng = np.random.default_rng(5)
+    K = np.array([[800.0, 1.5, 320.0], [0.0, 810.0, 240.0], [0.0, 0.0, 1.0]])
+    quads = rng.uniform(0.0, 640.0, (3000, 4, 2))
+    ratio, angle, depths, good = reference._parallelogram_many(quads, K)
+    canonical = reference._canonical_many(quads)
+    for i, quad in enumerate(quads):
+        one = reference._parallelogram(quad, K)
+        assert (one is not None) == good[i]
+        if one is not None:
+            assert one[0] == pytest.approx(ratio[i], rel=1e-9) and one[1] == pytest.approx(angle[i], abs=1e-7)
+            np.testing.assert_allclose(one[2], depths[i], rtol=1e-9)
+        c = reference._canonical(quad)
+        assert (c is None) == bool(np.isnan(canonical[i]).any())
+        if c is not None:
+            np.testing.assert_array_equal(c, canonical[i])
 
 
 def test_bad_input_is_refused_clearly():

@@ -241,46 +241,36 @@ def detect_reference(
     seen: set[tuple[int, ...]] = set()  # rough quads already listed (both searches)
     # a sheet wins over any card: once one is found, the candidates left (most of the time spent on those that
     # are none) are not tried. Sheets with a hidden corner completed come last, only when no card was found.
-    sheet = _candidate_groups(blurred, K, wanted, "sheet", seen) if "a4" in wanted else []
-    card = _candidate_groups(blurred, K, wanted, "card", seen) if "card" in wanted else []
-    for group in sheet[:1] + card:
-        _try_candidates(group, wanted, blurred, K, valid, sheets, accepted, best)
+    sheet_groups = _candidate_groups(blurred, K, wanted, "sheet", seen) if "a4" in wanted else []
+    card_groups = _candidate_groups(blurred, K, wanted, "card", seen) if "card" in wanted else []
+
+    def try_candidates(quads: list[np.ndarray]) -> None:
+        """Refine and test rough quads in turn, keeping the best-scoring object of each kind."""
+        for quad in quads:
+            # many thresholds give the same object: refine it once
+            if any(np.max(np.linalg.norm(quad - corners, axis=1)) < 3.0 for corners in accepted):
+                continue
+            if any(_overlaps(quad, sheet) for sheet in sheets):
+                continue
+            result = _finish(quad, wanted, blurred, K, valid)
+            if result is None:
+                continue
+            accepted.append(_canonical(result[1].corners_px))
+            score, obj = result
+            if obj.kind not in best or score > best[obj.kind][0]:
+                best[obj.kind] = (score, obj)
+
+    for group in sheet_groups[:1] + card_groups:
+        try_candidates(group)
         if "a4" in best:
             return best["a4"][1]
     if "card" in best:
         return best["card"][1]
-    for group in sheet[1:]:
-        _try_candidates(group, wanted, blurred, K, valid, sheets, accepted, best)
+    for group in sheet_groups[1:]:
+        try_candidates(group)
         if "a4" in best:
             return best["a4"][1]
     return None
-
-
-def _try_candidates(
-    quads: list[np.ndarray],
-    kinds: list[str],
-    blurred: np.ndarray,
-    K: np.ndarray,
-    valid: np.ndarray | None,
-    sheets: list[np.ndarray],
-    accepted: list[np.ndarray],
-    best: dict[str, tuple[float, ReferenceObject]],
-) -> None:
-    """Refine and test rough quads in turn, keeping the best-scoring object of each kind in ``best`` and the
-    corners of every accepted one in ``accepted`` (both updated)."""
-    for quad in quads:
-        # many thresholds give the same object: refine it once
-        if any(np.max(np.linalg.norm(quad - corners, axis=1)) < 3.0 for corners in accepted):
-            continue
-        if any(_overlaps(quad, sheet) for sheet in sheets):
-            continue
-        result = _finish(quad, kinds, blurred, K, valid)
-        if result is None:
-            continue
-        accepted.append(_canonical(result[1].corners_px))
-        score, obj = result
-        if obj.kind not in best or score > best[obj.kind][0]:
-            best[obj.kind] = (score, obj)
 
 
 # --- input checks -------------------------------------------------------------------------------------------
@@ -387,7 +377,7 @@ def _candidate_groups(
     grey = small.mean(axis=2)
     # a sheet's region is opened wide as well (white grout and other thin lines joined to it fall away), a card's
     # closed (over its stripe)
-    wide = np.ones((int(round((2 * (min(h, w) // 200) + 5) / scale)) | 1,) * 2, np.uint8)
+    wide = np.ones((2 * (min(h, w) // 200) + 5,) * 2, np.uint8)  # (sheets only: outlined at full resolution)
     features: list[tuple[np.ndarray, str]] = []
     if regions == "sheet":
         features.append((small.min(axis=2), "sheet"))  # paper: every channel high; skin, wood, most floors: not
@@ -462,7 +452,7 @@ def _candidate_groups(
                 seen.add(key)
                 quads.append(quad)
     groups = [quads]
-    if "a4" in kinds and regions == "sheet":
+    if regions == "sheet":
         # a sheet's region with a corner hidden (the foot, the leg) is no rectangle's image: complete it from three
         # of its sides, and try it after the others
         quads = []
