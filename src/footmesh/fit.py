@@ -171,8 +171,16 @@ class FitConfig:
     angle_prior_rad: float = 0.5
     num_vertices: int = 1200
     contour_samples: int = 400
+    contour_max_height_mm: float = 70.0
+    """Contour samples whose nearest model vertex stands higher than this above the sole (rest pose) are not used:
+    up there the outline is the model's cut or the leg (bare skin that the cue network often takes for foot, or
+    a trouser's edge), no evidence of the foot's shape (51 synthetic photos with a reference: length MAE 5.4 ->
+    3.8 mm; docs/fit.md)."""
     depth_samples: int = 800
     depth_erode_px: int = 2
+    full_starts: int = 2
+    """The stages after the first run from this many of the best starts and the lowest final cost wins: the first
+    stage's ranking often puts the right basin second (docs/fit.md)."""
     stages: tuple[tuple[str, int], ...] = (("rigid", 3), ("full", 40))
     """(stage, LM iterations at most): "rigid" = rotation + translation; "pose" adds the angles; "full" the angles
     and the shape. A separate pose stage before the shape was slower and no better on synthetic scenes (the pose
@@ -745,7 +753,7 @@ class _SideProblem:
         self.ev, self.arrays, self.side, self.config = ev, arrays, side, config
         self.distance0 = distance0  # assumed midfoot distance without scale evidence
         self.k_t = torch.from_numpy(ev.K)
-        self.look_ids = torch.from_numpy(np.concatenate([arrays.subset, arrays.cap, np.arange(arrays.mean.shape[0])]))
+        self.all_ids = torch.arange(arrays.mean.shape[0])
 
     # --- model ----------------------------------------------------------------------------------------------
 
@@ -840,16 +848,15 @@ class _SideProblem:
         t = torch.from_numpy
         subset, cap = self.arrays.subset, self.arrays.cap
         num = len(subset)
-        # the subset, the ankle cap (for the leg) and the whole mesh (its rim for the contour, its lowest point for
+        # the whole mesh: the subset, the ankle cap (for the leg), the rim (for the contour), the lowest point (for
         # the floor)
         with torch.no_grad():
-            full = self.evaluate(state, np.zeros((1, self.arrays.num_params)), self.look_ids, normals=True)
-        v_look, n_look = full["vertices"][0].numpy(), full["normals"][0].numpy()
-        v, n = v_look[:num], n_look[:num]
-        v_cap, n_cap = v_look[num : num + len(cap)], n_look[num : num + len(cap)]
-        v_all, n_all = v_look[num + len(cap) :], n_look[num + len(cap) :]
-        uv_look = self.project(full["vertices"])[0].numpy()
-        uv, uv_all = uv_look[:num], uv_look[num + len(cap) :]
+            full = self.evaluate(state, np.zeros((1, self.arrays.num_params)), self.all_ids, normals=True)
+        v_all, n_all = full["vertices"][0].numpy(), full["normals"][0].numpy()
+        v, n = v_all[subset], n_all[subset]
+        v_cap, n_cap = v_all[cap], n_all[cap]
+        uv_all = self.project(full["vertices"])[0].numpy()
+        uv = uv_all[subset]
         blocks: dict[str, dict] = {}
         # inside: vertices not hidden by the leg; those outside the silhouette carry a residual
         value = _bilinear(ev.outside_dt, uv)
@@ -874,6 +881,10 @@ class _SideProblem:
         rim = np.flatnonzero(cos_view < RIM_COS)
         _, contour_nearest = cKDTree(np.concatenate([uv, uv_all[rim]])).query(ev.contour)
         on_rim = contour_nearest >= num
+        rest_height = self.arrays.mean[:, 2].numpy()[np.concatenate([subset, rim])[contour_nearest]]
+        keep = rest_height < cfg.contour_max_height_mm
+        contour_points, contour_normals = ev.contour[keep], ev.contour_normal[keep]
+        contour_nearest, on_rim = contour_nearest[keep], on_rim[keep]
         contour_extra = rim[contour_nearest[on_rim] - num]
         extra_ids = [contour_extra]
         if ev.depth_points is not None:
@@ -916,8 +927,8 @@ class _SideProblem:
         position[on_rim] = num + np.searchsorted(extra, contour_extra)
         blocks["contour"] = {
             "index": t(position),
-            "points": t(ev.contour),
-            "normal": t(ev.contour_normal),
+            "points": t(contour_points),
+            "normal": t(contour_normals),
             "scale": cfg.contour_count / len(ev.contour),
         }
         if ev.floor is not None:
@@ -925,7 +936,7 @@ class _SideProblem:
         ids = t(np.concatenate([subset, extra]))
         assoc = _Association(ids, blocks, {})
         out = dict(full)
-        out["vertices"] = torch.cat([full["vertices"][:, :num], full["vertices"][:, t(num + len(cap) + extra)]], dim=1)
+        out["vertices"] = full["vertices"][:, ids]
         with torch.no_grad():
             res = self.residuals(out, assoc)
         for name, s in res.items():
@@ -1295,11 +1306,11 @@ def _fit(cues, K, depth_mm, cam_from_floor, side, init, config, model) -> FootFi
                 midfoot = state.rotation @ _rest_joints(arrays, state.shape, s)[0] + state.translation
                 distance0 = float(np.linalg.norm(midfoot))
             problem = _SideProblem(ev, arrays, s, config, distance0)
-            # the first stage from every start; the rest from the best of them
             starts.append((problem, *problem.solve(state, config.stages[:1])))
-        problem, state, assoc, its = min(starts, key=lambda x: x[2].cost)
-        state, assoc, more = problem.solve(state, config.stages[1:])
-        return problem, state, assoc, sum(x[3] for x in starts) + more
+        starts.sort(key=lambda x: x[2].cost)
+        ends = [(p, *p.solve(state, config.stages[1:])) for p, state, _, _ in starts[: config.full_starts]]
+        problem, state, assoc, _ = min(ends, key=lambda x: x[2].cost)
+        return problem, state, assoc, sum(x[3] for x in starts + ends)
 
     if len(sides) > 1 and config.parallel_sides:
         # the two sides in two threads: torch and most numpy calls release the GIL

@@ -49,6 +49,8 @@ class Record:
     side_ok: bool = False
     scale_source: str = ""
     seconds: float = math.nan
+    stage_seconds: dict[str, float] = field(default_factory=dict)
+    """The pipeline's own timings (result.json ``timings_s``): cues, reference, fit, measure."""
 
 
 @dataclass
@@ -72,6 +74,10 @@ class ModeResult:
             "failed": {r.index: r.error for r in self.records if not r.ok},
             "side_accuracy": float(np.mean([r.side_ok for r in ok])) if ok else math.nan,
             "seconds_median": float(np.median([r.seconds for r in ok])) if ok else math.nan,
+            "seconds_p90": float(np.percentile([r.seconds for r in ok], 90)) if ok else math.nan,
+            "stage_seconds_median": {
+                k: float(np.median([r.stage_seconds[k] for r in ok])) for k in (ok[0].stage_seconds if ok else {})
+            },
             "ratio_mae": float(np.nanmean([abs(r.ratio_err) for r in ok])) if ok else math.nan,
         }
         if scaled.any():
@@ -160,7 +166,14 @@ def evaluate_mode(
             except ValueError as exc:
                 result.records.append(Record(i, view, False, str(exc)))
                 continue
-            rec = Record(i, view, True, seconds=time.perf_counter() - t0, scale_source=res["scale_source"])
+            rec = Record(
+                i,
+                view,
+                True,
+                seconds=time.perf_counter() - t0,
+                scale_source=res["scale_source"],
+                stage_seconds=dict(res["timings_s"]),
+            )
             rec.side_ok = res["side"] == side
             m = res["measurements"]
             length, width = m["stick_length"]["value_mm"], m["ball_width"]["value_mm"]
