@@ -137,6 +137,17 @@ def test_no_object_no_reference():
         assert detect_reference(sample["rgb"], sample["K"], exclude_mask=_foot_and_leg(sample)) is None
 
 
+def test_a_bright_blob_with_no_straight_sides_is_no_sheet():
+    """The cut top of a rendered leg (a bright ellipse) once passed as an A4 sheet with a hidden corner completed,
+    and a plain photo got millimetres from it: a completion needs every side's edge where the side is seen."""
+    from footmesh.eval.measure import MODES
+    from footmesh.synth.scene import guided_view_config
+
+    sample = Renderer(guided_view_config(size=640, reference="none")).render(4242 + MODES.index("rgb"), 4)
+    foot = cv2.dilate((sample["labels"] == 1).astype(np.uint8), np.ones((15, 15), np.uint8)) > 0
+    assert detect_reference(sample["rgb"], sample["K"], exclude_mask=foot) is None
+
+
 def test_only_the_kinds_asked_for():
     """A card is never reported as a sheet (nor a sheet as a card); asking for it alone still finds it."""
     card = _scenes("card", 1)[0]

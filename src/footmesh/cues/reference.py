@@ -124,6 +124,10 @@ COMPLETION_MIN_COVERAGE = 0.5
 COMPLETION_MIN_SUPPORT = 0.8
 """A sheet is completed from three sides only when each shows its edge along this much of it (coverage,
 support as in ``_Line``)."""
+COMPLETED_MIN_SIDE_SUPPORT = 0.7
+"""Each side of a completed sheet must show its edge at this fraction of the positions where it is seen: the
+hidden corner is hidden by the foot (where nothing counts), not missing from a bright blob (the top of a leg
+once passed as a sheet with a corner completed, sides supported at 0.48 and 0.49)."""
 MAX_HULL_SIDES = 8
 """A region's hull simplified to more sides than this is no quadrilateral with a few corners cut off."""
 MAX_HIDDEN_AREA_RATIO = 2.0
@@ -244,7 +248,7 @@ def detect_reference(
     sheet_groups = _candidate_groups(blurred, K, wanted, "sheet", seen) if "a4" in wanted else []
     card_groups = _candidate_groups(blurred, K, wanted, "card", seen) if "card" in wanted else []
 
-    def try_candidates(quads: list[np.ndarray]) -> None:
+    def try_candidates(quads: list[np.ndarray], completed: bool = False) -> None:
         """Refine and test rough quads in turn, keeping the best-scoring object of each kind."""
         for quad in quads:
             # many thresholds give the same object: refine it once
@@ -252,7 +256,7 @@ def detect_reference(
                 continue
             if any(_overlaps(quad, sheet) for sheet in sheets):
                 continue
-            result = _finish(quad, wanted, blurred, K, valid)
+            result = _finish(quad, wanted, blurred, K, valid, completed=completed)
             if result is None:
                 continue
             accepted.append(_canonical(result[1].corners_px))
@@ -267,7 +271,7 @@ def detect_reference(
     if "card" in best:
         return best["card"][1]
     for group in sheet_groups[1:]:
-        try_candidates(group)
+        try_candidates(group, completed=True)
         if "a4" in best:
             return best["a4"][1]
     return None
@@ -1152,19 +1156,23 @@ def _finish(
     K: np.ndarray,
     valid: np.ndarray | None,
     mirrored: bool = False,
+    completed: bool = False,
 ) -> tuple[float, ReferenceObject] | None:
     """Refine a rough quad, name it, test it strictly and solve the plane: (score, object) or None.
 
     A marker's quad comes in its local order (``kinds == ["marker"]``); a sheet's or card's is put in local
     order once its sides are known. A sheet whose fourth side the rough quad misses (the foot hides a corner,
-    the region's outline cuts across it) is completed from its other three (``_complete_sheet``) and tried again.
+    the region's outline cuts across it) is completed from its other three (``_complete_sheet``) and tried again;
+    ``completed``: the rough quad is such a completion already. A completion's sides must all show their edge
+    (``COMPLETED_MIN_SIDE_SUPPORT``).
     """
     # the first pass of the sides' refinement is also what the completion starts from: fitted once for both
     first = _fit_sides(quad, blurred, valid, FIRST_RADIUS_PX)
-    result = _finish_quad(quad, kinds, blurred, K, valid, mirrored, first=first)
+    support = COMPLETED_MIN_SIDE_SUPPORT if completed else MIN_SIDE_SUPPORT
+    result = _finish_quad(quad, kinds, blurred, K, valid, mirrored, first=first, min_side_support=support)
     if result is None and "a4" in kinds:
-        for completed in _complete_sheet(quad, blurred, K, valid, lines=first):
-            result = _finish_quad(completed, ["a4"], blurred, K, valid)
+        for sheet in _complete_sheet(quad, blurred, K, valid, lines=first):
+            result = _finish_quad(sheet, ["a4"], blurred, K, valid, min_side_support=COMPLETED_MIN_SIDE_SUPPORT)
             if result is not None:
                 break
     return result
@@ -1178,6 +1186,7 @@ def _finish_quad(
     valid: np.ndarray | None,
     mirrored: bool = False,
     first: list[_Line | None] | None = None,
+    min_side_support: float = MIN_SIDE_SUPPORT,
 ) -> tuple[float, ReferenceObject] | None:
     """``_finish`` without the completion of a sheet (``first``: the sides fitted at ``FIRST_RADIUS_PX``)."""
     h, w = blurred.shape[:2]
@@ -1193,7 +1202,7 @@ def _finish_quad(
     supports = np.array([ln.support for ln in lines])
     coverage = np.array([ln.coverage for ln in lines])
     residuals = np.array([ln.residual_sd for ln in lines])
-    if supports.min() < MIN_SIDE_SUPPORT or supports.mean() < MIN_MEAN_SUPPORT:
+    if supports.min() < min_side_support or supports.mean() < MIN_MEAN_SUPPORT:
         return None
     if coverage.min() < MIN_COVERAGE["a4"][0] or coverage.mean() < MIN_COVERAGE["a4"][1]:
         return None
