@@ -1168,11 +1168,10 @@ def _finish(
     """
     # the first pass of the sides' refinement is also what the completion starts from: fitted once for both
     first = _fit_sides(quad, blurred, valid, FIRST_RADIUS_PX)
-    support = COMPLETED_MIN_SIDE_SUPPORT if completed else MIN_SIDE_SUPPORT
-    result = _finish_quad(quad, kinds, blurred, K, valid, mirrored, first=first, min_side_support=support)
+    result = _finish_quad(quad, kinds, blurred, K, valid, mirrored, first=first, completed=completed)
     if result is None and "a4" in kinds:
         for sheet in _complete_sheet(quad, blurred, K, valid, lines=first):
-            result = _finish_quad(sheet, ["a4"], blurred, K, valid, min_side_support=COMPLETED_MIN_SIDE_SUPPORT)
+            result = _finish_quad(sheet, ["a4"], blurred, K, valid, completed=True)
             if result is not None:
                 break
     return result
@@ -1186,9 +1185,10 @@ def _finish_quad(
     valid: np.ndarray | None,
     mirrored: bool = False,
     first: list[_Line | None] | None = None,
-    min_side_support: float = MIN_SIDE_SUPPORT,
+    completed: bool = False,
 ) -> tuple[float, ReferenceObject] | None:
-    """``_finish`` without the completion of a sheet (``first``: the sides fitted at ``FIRST_RADIUS_PX``)."""
+    """``_finish`` without the completion of a sheet (``first``: the sides fitted at ``FIRST_RADIUS_PX``;
+    ``completed``: the quad is a sheet completed across a hidden corner)."""
     h, w = blurred.shape[:2]
     refined = _refine_sides(quad, blurred, valid, first=first)
     if refined is None:
@@ -1202,6 +1202,7 @@ def _finish_quad(
     supports = np.array([ln.support for ln in lines])
     coverage = np.array([ln.coverage for ln in lines])
     residuals = np.array([ln.residual_sd for ln in lines])
+    min_side_support = COMPLETED_MIN_SIDE_SUPPORT if completed else MIN_SIDE_SUPPORT
     if supports.min() < min_side_support or supports.mean() < MIN_MEAN_SUPPORT:
         return None
     if coverage.min() < MIN_COVERAGE["a4"][0] or coverage.mean() < MIN_COVERAGE["a4"][1]:

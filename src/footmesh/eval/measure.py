@@ -75,9 +75,9 @@ class ModeResult:
             "side_accuracy": float(np.mean([r.side_ok for r in ok])) if ok else math.nan,
             "seconds_median": float(np.median([r.seconds for r in ok])) if ok else math.nan,
             "seconds_p90": float(np.percentile([r.seconds for r in ok], 90)) if ok else math.nan,
-            "stage_seconds_median": {
-                k: float(np.median([r.stage_seconds[k] for r in ok])) for k in (ok[0].stage_seconds if ok else {})
-            },
+            "stage_seconds_median": (
+                {k: float(np.median([r.stage_seconds[k] for r in ok])) for k in ok[0].stage_seconds} if ok else {}
+            ),
             "ratio_mae": float(np.nanmean([abs(r.ratio_err) for r in ok])) if ok else math.nan,
         }
         if scaled.any():
