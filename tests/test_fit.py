@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from math import inf
+
 import numpy as np
 import pytest
 import torch
@@ -139,6 +141,20 @@ def test_auto_picks_the_true_side_and_reports_both_losses(depth_fits, floor_fits
         assert set(fit.side_losses) == {"left", "right"}
         assert fit.side_losses[fit.side] == pytest.approx(fit.loss)
         assert fit.side_losses[fit.side] <= min(fit.side_losses.values())
+
+
+def test_a_near_tie_between_the_sides_carries_every_start_to_the_end(scenes):
+    """With the tie ratio never met only the two best starts of each side are carried to the end; always met,
+    every start is: a superset of the end points, so neither side's final cost can be higher, and it costs more
+    iterations."""
+    sample = scenes[0]
+    cues = synthetic_cues(sample, joint_noise_px=3.0, rng=0)
+    floor = sample["cam_from_scene"]
+    fits = {r: fit_foot(cues, sample["K"], cam_from_floor=floor, config=FitConfig(side_tie_ratio=r)) for r in (0, inf)}
+    few, every = fits[0], fits[inf]
+    assert every.iterations > few.iterations
+    for side in ("left", "right"):
+        assert every.side_losses[side] <= few.side_losses[side] + 1e-9
 
 
 # --- the result's contract ---------------------------------------------------------------------------------------

@@ -187,6 +187,9 @@ class FitConfig:
     then bends to make up for the mean shape's size: docs/fit.md)."""
     parallel_sides: bool = True
     """With side="auto", fit the two sides in two threads (about 1.3-1.6x faster on two cores)."""
+    side_tie_ratio: float = 1.15
+    """With side="auto", when the two sides' best final costs lie within this ratio, the starts not carried to the
+    end yet are, on both sides: on a near tie the wrong side has often only found the better basin (docs/fit.md)."""
     relative_tolerance: float = 1e-3
     """A stage stops when an accepted step lowers the cost by less than this fraction."""
 
@@ -1297,7 +1300,7 @@ def _fit(cues, K, depth_mm, cam_from_floor, side, init, config, model) -> FootFi
     arrays = _model_arrays(model, config.num_vertices)
     sides = SIDES if side == "auto" else (side,)
 
-    def fit_side(s: str) -> tuple[_SideProblem, _State, _Association, int]:
+    def rigid_starts(s: str) -> list[tuple[_SideProblem, _State, _Association, int]]:
         torch.set_num_threads(1)  # per thread with OpenMP builds
         starts = []
         for state in _initial_states(ev, arrays, s, init):
@@ -1307,17 +1310,28 @@ def _fit(cues, K, depth_mm, cam_from_floor, side, init, config, model) -> FootFi
                 distance0 = float(np.linalg.norm(midfoot))
             problem = _SideProblem(ev, arrays, s, config, distance0)
             starts.append((problem, *problem.solve(state, config.stages[:1])))
-        starts.sort(key=lambda x: x[2].cost)
-        ends = [(p, *p.solve(state, config.stages[1:])) for p, state, _, _ in starts[: config.full_starts]]
-        problem, state, assoc, _ = min(ends, key=lambda x: x[2].cost)
-        return problem, state, assoc, sum(x[3] for x in starts + ends)
+        return sorted(starts, key=lambda x: x[2].cost)
 
-    if len(sides) > 1 and config.parallel_sides:
-        # the two sides in two threads: torch and most numpy calls release the GIL
-        with ThreadPoolExecutor(max_workers=len(sides)) as pool:
-            fitted = dict(zip(sides, pool.map(fit_side, sides), strict=True))
-    else:
-        fitted = {s: fit_side(s) for s in sides}
+    def carried_on(starts: list) -> list[tuple[_SideProblem, _State, _Association, int]]:
+        torch.set_num_threads(1)
+        return [(p, *p.solve(state, config.stages[1:])) for p, state, _, _ in starts]
+
+    def per_side(fn, args: dict) -> dict:
+        if len(args) > 1 and config.parallel_sides:
+            # the two sides in two threads: torch and most numpy calls release the GIL
+            with ThreadPoolExecutor(max_workers=len(args)) as pool:
+                return dict(zip(args, pool.map(fn, args.values()), strict=True))
+        return {s: fn(a) for s, a in args.items()}
+
+    starts = per_side(rigid_starts, {s: s for s in sides})
+    ends = per_side(carried_on, {s: starts[s][: config.full_starts] for s in sides})
+    costs = {s: min(e[2].cost for e in ends[s]) for s in sides}
+    if len(sides) > 1 and max(costs.values()) < config.side_tie_ratio * min(costs.values()):
+        # a near tie between the sides: the starts left behind may hold a better basin for either
+        more = per_side(carried_on, {s: starts[s][config.full_starts :] for s in sides})
+        ends = {s: ends[s] + more[s] for s in sides}
+    fitted = {s: min(ends[s], key=lambda x: x[2].cost) for s in sides}
+    iterations = sum(x[3] for s in sides for x in starts[s] + ends[s])
     best = min(fitted, key=lambda s: fitted[s][2].cost)
     problem, state, assoc, _ = fitted[best]
     covariance = problem.covariance(state, assoc)
@@ -1351,7 +1365,7 @@ def _fit(cues, K, depth_mm, cam_from_floor, side, init, config, model) -> FootFi
         side_losses={s: fitted[s][2].cost for s in sides},
         covariance=covariance,
         quality=quality,
-        iterations=sum(f[3] for f in fitted.values()),
+        iterations=iterations,
     )
 
 

@@ -63,6 +63,13 @@ ARUCO_DICTIONARY = cv2.aruco.DICT_4X4_50
 ARUCO_ID = 0
 MARKER_SHEET_SCALE = 1.5
 """The printed sheet around a marker's black square (140 mm around 100 mm), with room for perspective."""
+MARKER_CELLS = 6
+"""Cells across a DICT_4X4 marker's black square (4 pattern cells and a one-cell black border)."""
+MARKER_RETRY_RADII_CELLS = (0.4, 0.6)
+"""Where OpenCV's corners of a large marker sit up to half a cell inside its outline (its sub-pixel window is too
+small to move them there), the sides are searched again this many cells either way, in turn. The white sheet's own
+edge lies 1.2 cells outside the outline, out of reach; a side caught on the pattern's edges a cell inside would
+make the square a rectangle of ratio 5:6, which the metric test refuses."""
 
 ASPECT_TOLERANCE = 0.045
 """Largest |log(measured side ratio / the object's)| accepted; A4 and card differ by 0.115 in log ratio."""
@@ -85,9 +92,10 @@ MIN_MEAN_SUPPORT = 0.6
 """Each side must show its edge at this fraction (the four sides together: the second) of the positions along it
 that show either the edge or plainly no edge; where the foot or its shadow covers the side nothing is known and
 nothing counts (``_side_edge_points``)."""
-MIN_COVERAGE: dict[str, tuple[float, float]] = {"a4": (0.2, 0.4), "card": (0.6, 0.8), "marker": (0.6, 0.8)}
+MIN_COVERAGE: dict[str, tuple[float, float]] = {"a4": (0.2, 0.4), "card": (0.6, 0.8), "marker": (0.3, 0.6)}
 """Each side must show its edge along the first fraction of its sampled length at least, and the four sides
-together along the second: a sheet may lie under the foot, a card or a marker lies beside it."""
+together along the second: a sheet may lie under the foot, a card lies beside it; a marker is proven by its
+decoded pattern, so the foot's shadow may cover more of its sides (the lines' fit still bounds the scale's SD)."""
 OCCLUSION_MATCH = 0.35
 """Colours closer than this fraction of the change across a side count as the same colour."""
 MAX_RESIDUAL_RATIO = 2.0
@@ -343,9 +351,12 @@ def _detect_marker(
             # upright print seen from above: x along the pattern's bottom edge, y up it, z out of the paper; the
             # mirror image's reading order runs the other way round: top-left first keeps z up
             ordered = quad if mirrored else quad[[3, 2, 1, 0]]
-            found = _finish(ordered, ["marker"], blurred, K, valid, mirrored=mirrored)
-            if found is not None:
-                return found[1], seen
+            cell = float(np.mean(np.linalg.norm(np.roll(ordered, -1, axis=0) - ordered, axis=1))) / MARKER_CELLS
+            wider = [r * cell for r in MARKER_RETRY_RADII_CELLS if r * cell > FIRST_RADIUS_PX]
+            for radius in (FIRST_RADIUS_PX, *wider):
+                found = _finish(ordered, ["marker"], blurred, K, valid, mirrored=mirrored, first_radius=radius)
+                if found is not None:
+                    return found[1], seen
     return None, seen
 
 
@@ -1157,6 +1168,7 @@ def _finish(
     valid: np.ndarray | None,
     mirrored: bool = False,
     completed: bool = False,
+    first_radius: float = FIRST_RADIUS_PX,
 ) -> tuple[float, ReferenceObject] | None:
     """Refine a rough quad, name it, test it strictly and solve the plane: (score, object) or None.
 
@@ -1164,11 +1176,13 @@ def _finish(
     order once its sides are known. A sheet whose fourth side the rough quad misses (the foot hides a corner,
     the region's outline cuts across it) is completed from its other three (``_complete_sheet``) and tried again;
     ``completed``: the rough quad is such a completion already. A completion's sides must all show their edge
-    (``COMPLETED_MIN_SIDE_SUPPORT``).
+    (``COMPLETED_MIN_SIDE_SUPPORT``). ``first_radius``: the search radius (px) across the rough sides.
     """
     # the first pass of the sides' refinement is also what the completion starts from: fitted once for both
-    first = _fit_sides(quad, blurred, valid, FIRST_RADIUS_PX)
-    result = _finish_quad(quad, kinds, blurred, K, valid, mirrored, first=first, completed=completed)
+    first = _fit_sides(quad, blurred, valid, first_radius)
+    result = _finish_quad(
+        quad, kinds, blurred, K, valid, mirrored, first=first, completed=completed, first_radius=first_radius
+    )
     if result is None and "a4" in kinds:
         for sheet in _complete_sheet(quad, blurred, K, valid, lines=first):
             result = _finish_quad(sheet, ["a4"], blurred, K, valid, completed=True)
@@ -1186,11 +1200,12 @@ def _finish_quad(
     mirrored: bool = False,
     first: list[_Line | None] | None = None,
     completed: bool = False,
+    first_radius: float = FIRST_RADIUS_PX,
 ) -> tuple[float, ReferenceObject] | None:
-    """``_finish`` without the completion of a sheet (``first``: the sides fitted at ``FIRST_RADIUS_PX``;
+    """``_finish`` without the completion of a sheet (``first``: the sides fitted at ``first_radius``;
     ``completed``: the quad is a sheet completed across a hidden corner)."""
     h, w = blurred.shape[:2]
-    refined = _refine_sides(quad, blurred, valid, first=first)
+    refined = _refine_sides(quad, blurred, valid, radii=(first_radius, 1.5), first=first)
     if refined is None:
         return None
     corners, lines = refined
