@@ -212,7 +212,14 @@ class MeasureConfig:
     """Settings of ``footmesh measure`` (``footmesh.pipeline``)."""
 
     working_max_side: int = 1024
-    """Photos are processed at no more than this many pixels on their longer side (results map back)."""
+    """Photos with a depth map are processed at no more than this many pixels on their longer side (results map
+    back)."""
+    rgb_working_max_side: int = 640
+    """Plain photos (RGB, with or without a reference object) at no more than this: the side the fit was tuned
+    at. 960-px guided photos with a reference (``footmesh eval measure --size 960 --views guided``, seeds 4242
+    and 777, 36 scaled): length / width MAE 4.68 / 3.21 mm at 1024 px, 4.71 / 3.05 at 640, and the median time
+    (idle, seed 4242) 1.89 -> 1.29 s. With depth the larger side is kept (RGB-D width MAE 0.67 mm at 1024 px,
+    1.12 at 640, 20 photos)."""
     crop_fill: float = 0.45
     """The foot's longer side fills this fraction of the crop given to the networks (as in their training)."""
     min_foot_fraction: float = 0.004

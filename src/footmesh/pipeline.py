@@ -223,11 +223,12 @@ def run_pipeline(photo: Photo, side: str, config: MeasureConfig, input: str = "a
 
     timings = {}
     t = time.perf_counter()
-    rgb, depth, K, to_photo = working_photo(photo, config.working_max_side)
-    h, w = rgb.shape[:2]
-    kind = input if input != "auto" else ("rgbd" if depth is not None else "rgb")
-    if kind in ("rgbd", "depth") and depth is None:
+    kind = input if input != "auto" else ("rgbd" if photo.depth_mm is not None else "rgb")
+    if kind in ("rgbd", "depth") and photo.depth_mm is None:
         raise PipelineError(f"{kind} input needs a depth map (--depth)")
+    max_side = config.rgb_working_max_side if kind == "rgb" else config.working_max_side
+    rgb, depth, K, to_photo = working_photo(photo, max_side)
+    h, w = rgb.shape[:2]
     with torch.inference_mode():
         located = locate_foot(None if kind == "depth" else rgb, None if kind == "rgb" else depth, K, kind, config)
     check_framing(located, w, h, config)
