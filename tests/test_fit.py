@@ -236,6 +236,20 @@ def test_a_decoder_mesh_can_start_the_fit(scenes):
     assert abs(canonical_measures(fit.shape)[0] - canonical_measures(sample["shape"])[0]) < 4.0
 
 
+def test_a_decoder_mesh_beside_the_pnp_starts_never_ends_worse(scenes):
+    """``alone=False``: the decoder's placement is one start more, carried through every stage: the final cost is
+    the lowest over a superset of the plain fit's end points."""
+    sample = scenes[3]
+    cues = synthetic_cues(sample, joint_noise_px=3.0, rng=3)
+    depth, side = sample["depth"].astype(np.float32), _side(sample)
+    plain = fit_foot(cues, sample["K"], depth_mm=depth, side=side)
+    both = fit_foot(
+        cues, sample["K"], depth_mm=depth, side=side, init=FitInit(vertices_cam=sample["vertices"] * 1.05, alone=False)
+    )
+    assert both.iterations > plain.iterations
+    assert both.loss <= plain.loss + 1e-9
+
+
 # --- pieces -----------------------------------------------------------------------------------------------------
 
 

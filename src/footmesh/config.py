@@ -244,6 +244,11 @@ class MeasureConfig:
     working pixels (crops are 300-700 px, so joints were weighed 1.5-3x too strongly against the silhouette) on
     the guided seed-777 photos: RGB-D length / width MAE 2.44 / 0.85 -> 2.39 / 0.68 mm (bias -1.3 -> -0.4 mm),
     RGB + floor 9.3 -> 7.9 mm (14 and 10 photos); 1.5 was worse."""
+    decoder_start_inputs: tuple[str, ...] = ("rgbd",)
+    """Inputs whose fit also starts from the shipped mesh decoder's foot (``footmesh.recon``), carried through every
+    stage beside the PnP starts. Guided photos, seeds 4242 / 777 (20 each): RGB-D length / width MAE 1.66 / 0.70
+    -> 1.26 / 0.67 mm and 1.79 / 0.59 -> 1.76 / 0.57; depth alone 2.50 / 1.14 -> 2.48 / 1.13 and 2.45 / 0.99 ->
+    2.49 / 1.11, no gain for the time, so not for depth. Not RGB: its decoder is too far off (62 mm vertex error)."""
     refine_silhouette: bool = True
     """Snap the networks' silhouette to the photo's edges (``cues.refine``; needs the RGB image)."""
     rgbd_with_depth_network: bool = True

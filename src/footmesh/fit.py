@@ -201,12 +201,15 @@ class FitInit:
     ``cam_from_foot`` (4, 4) places the foot (``vertices_cam = R @ model(shape, angles, side) + t``);
     ``vertices_cam`` (V, 3) mm, a posed mesh of the model's topology in the camera frame (its placement and size
     are taken by a similarity Procrustes fit); ``shape`` (K',) SD units; ``angles`` (22,) radians.
+    ``alone``: start from this placement only (a warm start); False: one start more beside the PnP ones, always
+    carried through the full stage (a mesh decoder's guess).
     """
 
     shape: np.ndarray | None = None
     angles: np.ndarray | None = None
     cam_from_foot: np.ndarray | None = None
     vertices_cam: np.ndarray | None = None
+    alone: bool = True
 
     @classmethod
     def from_fit(cls, fit: FootFit) -> FitInit:
@@ -1143,8 +1146,15 @@ def _pnp_candidates(ev: _Evidence, rest_joints: np.ndarray) -> list[tuple[np.nda
     return found
 
 
-def _initial_states(ev: _Evidence, arrays: _ModelArrays, side: str, init: FitInit | None) -> list[_State]:
-    """Starting states: the given placement, or one per PnP candidate, each scaled to the scale evidence."""
+def _initial_states(
+    ev: _Evidence, arrays: _ModelArrays, side: str, init: FitInit | None
+) -> tuple[list[_State], list[_State]]:
+    """Starting states, each scaled to the scale evidence: the PnP candidates' (ranked by the rigid stage) and the
+    given placement's (carried through every stage). A warm start (``init.alone``) is the only one."""
+    if init is not None and not init.alone and (init.vertices_cam is not None or init.cam_from_foot is not None):
+        pnp, _ = _initial_states(ev, arrays, side, None)
+        given, _ = _initial_states(ev, arrays, side, replace(init, alone=True))
+        return pnp, given
     k = arrays.num_shape
     shape = np.zeros(k)
     angles = np.zeros(sk.NUM_DOFS)
@@ -1186,7 +1196,7 @@ def _initial_states(ev: _Evidence, arrays: _ModelArrays, side: str, init: FitIni
             stacklevel=4,
         )
         states = [_State(rot, t, angles, shape) for rot, t in placements[:1]]
-    return states
+    return states, []
 
 
 def _translation_for(rotation: np.ndarray, points: np.ndarray, ev: _Evidence) -> np.ndarray:
@@ -1301,16 +1311,20 @@ def _fit(cues, K, depth_mm, cam_from_floor, side, init, config, model) -> FootFi
     sides = SIDES if side == "auto" else (side,)
 
     def rigid_starts(s: str) -> list[tuple[_SideProblem, _State, _Association, int]]:
+        """The rigid stage from every start: the given ones first, then the PnP ones by cost."""
         torch.set_num_threads(1)  # per thread with OpenMP builds
-        starts = []
-        for state in _initial_states(ev, arrays, s, init):
+
+        def solved(state: _State) -> tuple[_SideProblem, _State, _Association, int]:
             distance0 = None
             if ev.scale_source == "none":
                 midfoot = state.rotation @ _rest_joints(arrays, state.shape, s)[0] + state.translation
                 distance0 = float(np.linalg.norm(midfoot))
             problem = _SideProblem(ev, arrays, s, config, distance0)
-            starts.append((problem, *problem.solve(state, config.stages[:1])))
-        return sorted(starts, key=lambda x: x[2].cost)
+            return problem, *problem.solve(state, config.stages[:1])
+
+        pnp, given = _initial_states(ev, arrays, s, init)
+        given_count[s] = len(given)
+        return [solved(x) for x in given] + sorted((solved(x) for x in pnp), key=lambda x: x[2].cost)
 
     def carried_on(starts: list) -> list[tuple[_SideProblem, _State, _Association, int]]:
         torch.set_num_threads(1)
@@ -1323,12 +1337,14 @@ def _fit(cues, K, depth_mm, cam_from_floor, side, init, config, model) -> FootFi
                 return dict(zip(args, pool.map(fn, args.values()), strict=True))
         return {s: fn(a) for s, a in args.items()}
 
+    given_count: dict[str, int] = {}
     starts = per_side(rigid_starts, {s: s for s in sides})
-    ends = per_side(carried_on, {s: starts[s][: config.full_starts] for s in sides})
+    carried = {s: given_count[s] + config.full_starts for s in sides}
+    ends = per_side(carried_on, {s: starts[s][: carried[s]] for s in sides})
     costs = {s: min(e[2].cost for e in ends[s]) for s in sides}
     if len(sides) > 1 and max(costs.values()) < config.side_tie_ratio * min(costs.values()):
         # a near tie between the sides: the starts left behind may hold a better basin for either
-        more = per_side(carried_on, {s: starts[s][config.full_starts :] for s in sides})
+        more = per_side(carried_on, {s: starts[s][carried[s] :] for s in sides})
         ends = {s: ends[s] + more[s] for s in sides}
     fitted = {s: min(ends[s], key=lambda x: x[2].cost) for s in sides}
     iterations = sum(x[3] for s in sides for x in starts[s] + ends[s])

@@ -140,6 +140,34 @@ def _rest(cues: Cues) -> tuple[np.ndarray, np.ndarray, str]:
     return cues.joints2d_px, cues.joint_confidence, cues.input
 
 
+def decoder_mesh(
+    located: Located, rgb: np.ndarray | None, depth: np.ndarray | None, K: np.ndarray, kind: str
+) -> np.ndarray | None:
+    """The shipped mesh decoder's foot (V, 3) mm, camera frame, from the networks' crop of the photo (K (3, 3) of
+    the photo); None when the crop holds no depth to read the scale from."""
+    from footmesh.cues.predict import resize_inputs
+    from footmesh.recon.model import predict_batch, resize_intrinsics
+    from footmesh.recon.weights import network_for
+
+    net, cfg = network_for(kind)
+    crop = located.crop
+    crop_rgb = None if rgb is None else crop.cut(rgb)
+    crop_depth = None if depth is None else crop.cut(depth, fill=0.0)
+    if crop_depth is not None and not np.any(crop_depth > 0):
+        return None
+    small_rgb, small_depth = resize_inputs(crop_rgb, crop_depth, cfg.image_size)
+    K_crop = K.copy()
+    K_crop[:2, 2] -= (crop.x0, crop.y0)  # the crop is the same camera with its principal point moved
+    K_small = resize_intrinsics(K_crop, crop.side, cfg.image_size)
+    out = predict_batch(
+        net,
+        None if small_rgb is None or kind == "depth" else small_rgb[None],
+        None if small_depth is None or kind == "rgb" else small_depth[None],
+        K_small[None],
+    )
+    return out.vertices[0].double().numpy()
+
+
 def joint_sigma_px(crop_side_px: int, config: MeasureConfig) -> float:
     """The fit's expected 2D joint error in working pixels: the networks' error scales with the crop they saw."""
     return max(config.joint_sigma_224_px * crop_side_px / 224.0, 1.0)
@@ -219,7 +247,7 @@ class _Files:
 def run_pipeline(photo: Photo, side: str, config: MeasureConfig, input: str = "auto") -> tuple[dict, _Files]:
     """Everything after loading: the result dict and the arrays of the files to write."""
     from footmesh.cues.reference import detect_reference
-    from footmesh.fit import FitConfig, fit_foot
+    from footmesh.fit import FitConfig, FitInit, fit_foot
 
     timings = {}
     t = time.perf_counter()
@@ -243,12 +271,18 @@ def run_pipeline(photo: Photo, side: str, config: MeasureConfig, input: str = "a
     timings["reference_s"] = time.perf_counter() - t
 
     t = time.perf_counter()
+    init = None
+    if kind in config.decoder_start_inputs:
+        with torch.inference_mode():
+            mesh = decoder_mesh(located, None if kind == "depth" else rgb, depth, K, kind)
+        init = None if mesh is None else FitInit(vertices_cam=mesh, alone=False)
     fit = fit_foot(
         located.cues,
         K,
         depth_mm=None if kind == "rgb" else depth,
         cam_from_floor=None if reference is None else reference.cam_from_floor,
         side=side,
+        init=init,
         config=FitConfig(joint_sigma_px=joint_sigma_px(located.crop.side, config)),
     )
     timings["fit_s"] = time.perf_counter() - t
