@@ -143,16 +143,17 @@ def _rest(cues: Cues) -> tuple[np.ndarray, np.ndarray, str]:
 def decoder_mesh(
     located: Located, rgb: np.ndarray | None, depth: np.ndarray | None, K: np.ndarray, kind: str
 ) -> np.ndarray | None:
-    """The shipped mesh decoder's foot (V, 3) mm, camera frame, from the networks' crop of the photo (K (3, 3) of
-    the photo); None when the crop holds no depth to read the scale from."""
+    """The shipped ``kind`` mesh decoder's foot (V, 3) mm, camera frame, from the networks' crop of the photo
+    (K (3, 3) of the photo; the images ``kind`` does not use are ignored); None when the crop holds no depth to
+    read the scale from."""
     from footmesh.cues.predict import resize_inputs
     from footmesh.recon.model import predict_batch, resize_intrinsics
     from footmesh.recon.weights import network_for
 
     net, cfg = network_for(kind)
     crop = located.crop
-    crop_rgb = None if rgb is None else crop.cut(rgb)
-    crop_depth = None if depth is None else crop.cut(depth, fill=0.0)
+    crop_rgb = None if kind == "depth" else crop.cut(rgb)
+    crop_depth = None if kind == "rgb" else crop.cut(depth, fill=0.0)
     if crop_depth is not None and not np.any(crop_depth > 0):
         return None
     small_rgb, small_depth = resize_inputs(crop_rgb, crop_depth, cfg.image_size)
@@ -161,8 +162,8 @@ def decoder_mesh(
     K_small = resize_intrinsics(K_crop, crop.side, cfg.image_size)
     out = predict_batch(
         net,
-        None if small_rgb is None or kind == "depth" else small_rgb[None],
-        None if small_depth is None or kind == "rgb" else small_depth[None],
+        None if small_rgb is None else small_rgb[None],
+        None if small_depth is None else small_depth[None],
         K_small[None],
     )
     return out.vertices[0].double().numpy()
@@ -274,7 +275,7 @@ def run_pipeline(photo: Photo, side: str, config: MeasureConfig, input: str = "a
     init = None
     if kind in config.decoder_start_inputs:
         with torch.inference_mode():
-            mesh = decoder_mesh(located, None if kind == "depth" else rgb, depth, K, kind)
+            mesh = decoder_mesh(located, rgb, depth, K, kind)
         init = None if mesh is None else FitInit(vertices_cam=mesh, alone=False)
     fit = fit_foot(
         located.cues,
