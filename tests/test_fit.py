@@ -21,6 +21,7 @@ from footmesh.fit import (
     forward_kinematics_by_level,
     leg_occludes,
     main,
+    mesh_side_residuals,
     parameter_names,
     shape_for_scale,
     silhouette_contour,
@@ -248,6 +249,15 @@ def test_a_decoder_mesh_beside_the_pnp_starts_never_ends_worse(scenes):
     )
     assert both.iterations > plain.iterations
     assert both.loss <= plain.loss + 1e-9
+
+
+def test_a_mesh_tells_its_side_and_its_mirror_the_other(scenes):
+    for sample in scenes:
+        true, other = _side(sample), ("right" if _side(sample) == "left" else "left")
+        residuals = mesh_side_residuals(sample["vertices"])
+        assert 3 * residuals[true] < residuals[other]
+        mirrored = mesh_side_residuals(sample["vertices"] * [-1.0, 1.0, 1.0])
+        assert 3 * mirrored[other] < mirrored[true]
 
 
 # --- pieces -----------------------------------------------------------------------------------------------------

@@ -128,6 +128,9 @@ def test_bundled_photos_measure_close_to_the_truth(measured):
         assert CONTRACT_KEYS <= set(result), name
         assert set(result["measurements"]) == MEASUREMENTS
         assert result["side"] == ex.side, name
+        # RGB-D: the mesh decoder's foot tells the side (only it is fitted); a plain photo's fit tries both
+        assert result["side_source"] == ("decoder" if name == "depth_right" else "fit"), name
+        assert len(result["side_losses"]) == (1 if name == "depth_right" else 2), name
         assert result["scale_source"] == {"a4_left": "a4", "depth_right": "depth", "card_right": "card"}[name]
         length = result["measurements"]["stick_length"]
         error = abs(length["value_mm"] - ex.truth_mm["stick_length"])

@@ -248,7 +248,7 @@ class _Files:
 def run_pipeline(photo: Photo, side: str, config: MeasureConfig, input: str = "auto") -> tuple[dict, _Files]:
     """Everything after loading: the result dict and the arrays of the files to write."""
     from footmesh.cues.reference import detect_reference
-    from footmesh.fit import FitConfig, FitInit, fit_foot
+    from footmesh.fit import FitConfig, FitInit, fit_foot, mesh_side_residuals
 
     timings = {}
     t = time.perf_counter()
@@ -273,10 +273,16 @@ def run_pipeline(photo: Photo, side: str, config: MeasureConfig, input: str = "a
 
     t = time.perf_counter()
     init = None
+    side_source = "given" if side != "auto" else "fit"
     if kind in config.decoder_start_inputs:
         with torch.inference_mode():
             mesh = decoder_mesh(located, rgb, depth, K, kind)
-        init = None if mesh is None else FitInit(vertices_cam=mesh, alone=False)
+        if mesh is not None:
+            init = FitInit(vertices_cam=mesh, alone=False)
+            residuals = mesh_side_residuals(mesh)
+            nearer = min(residuals, key=residuals.get)
+            if side == "auto" and max(residuals.values()) >= config.decoder_side_ratio * residuals[nearer]:
+                side, side_source = nearer, "decoder"  # told plainly: the other side's fit is not needed
     fit = fit_foot(
         located.cues,
         K,
@@ -351,6 +357,7 @@ def run_pipeline(photo: Photo, side: str, config: MeasureConfig, input: str = "a
         "input": kind,
         "side": fit.side,
         "side_losses": {k: float(v) for k, v in fit.side_losses.items()},
+        "side_source": side_source,
         "scale_source": scale_source,
         "scaled": bool(fit.scaled),
         "reference": None if reference is None else _reference_dict(reference, to_photo),
