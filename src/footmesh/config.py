@@ -249,10 +249,13 @@ class MeasureConfig:
     stage beside the PnP starts. Guided photos, seeds 4242 / 777 (20 each): RGB-D length / width MAE 1.66 / 0.70
     -> 1.26 / 0.67 mm and 1.79 / 0.59 -> 1.76 / 0.57; depth alone 2.50 / 1.14 -> 2.48 / 1.13 and 2.45 / 0.99 ->
     2.49 / 1.11, no gain for the time, so not for depth. Not RGB: its decoder is too far off (62 mm vertex error)."""
+    decoder_side_inputs: tuple[str, ...] = ("rgbd", "depth")
+    """Inputs whose side (with ``--side auto``) is taken from the shipped mesh decoder's foot when the other side's
+    mean foot fits it ``decoder_side_ratio`` times worse (``fit.mesh_side_residuals``); only that side is then
+    fitted, about half the fit's work. The nearer side was the true one on 52 of 52 RGB-D photos (guided and
+    random; ratios 2.0-24) and 19 of 20 guided depth photos (the wrong one at 1.4, the 17 at 3 or more right).
+    Not RGB: its decoder picked the true side on 14 of 20."""
     decoder_side_ratio: float = 3.0
-    """With such a decoder start and ``--side auto``, the side is taken from the decoder's mesh when the other
-    side's mean foot fits it this many times worse (``fit.mesh_side_residuals``), and only that side is fitted.
-    On 52 RGB-D photos (guided and random) the nearer side was always the true one, at ratios 2.0-24."""
     refine_silhouette: bool = True
     """Snap the networks' silhouette to the photo's edges (``cues.refine``; needs the RGB image)."""
     rgbd_with_depth_network: bool = True

@@ -274,15 +274,18 @@ def run_pipeline(photo: Photo, side: str, config: MeasureConfig, input: str = "a
     t = time.perf_counter()
     init = None
     side_source = "given" if side != "auto" else "fit"
-    if kind in config.decoder_start_inputs:
+    start, tell_side = kind in config.decoder_start_inputs, side == "auto" and kind in config.decoder_side_inputs
+    mesh = None
+    if start or tell_side:
         with torch.inference_mode():
             mesh = decoder_mesh(located, rgb, depth, K, kind)
-        if mesh is not None:
-            init = FitInit(vertices_cam=mesh, alone=False)
-            residuals = mesh_side_residuals(mesh)
-            nearer = min(residuals, key=residuals.get)
-            if side == "auto" and max(residuals.values()) >= config.decoder_side_ratio * residuals[nearer]:
-                side, side_source = nearer, "decoder"  # told plainly: the other side's fit is not needed
+    if mesh is not None and start:
+        init = FitInit(vertices_cam=mesh, alone=False)
+    if mesh is not None and tell_side:
+        residuals = mesh_side_residuals(mesh)
+        nearer = min(residuals, key=residuals.get)
+        if max(residuals.values()) >= config.decoder_side_ratio * residuals[nearer]:
+            side, side_source = nearer, "decoder"  # told plainly: the other side's fit is not needed
     fit = fit_foot(
         located.cues,
         K,
