@@ -210,6 +210,24 @@ def test_a_photo_without_reference_is_unscaled(tmp_path):
     assert abs(result["ratios"]["ball_width/stick_length"] - ratio) < 0.03
 
 
+@pytest.mark.slow
+def test_a_rectangle_that_would_make_the_foot_implausible_gives_no_scale(tmp_path):
+    """A guided eval photo without any reference object (seed 4242, rgb photo 25): the cut top of the trouser leg
+    looks like a card seen in perspective and once made the foot 133 mm short. The foot it implies is no adult's,
+    so it is ignored and said so: the photo is measured unscaled."""
+    from footmesh.eval.measure import _write_inputs
+    from footmesh.synth.render import Renderer
+    from footmesh.synth.scene import guided_view_config
+
+    sample = Renderer(guided_view_config(size=640, reference="none")).render(4242 + 3, 25)
+    paths = _write_inputs(sample, tmp_path, with_depth=False)
+    result = measure_photo(paths["image"], tmp_path / "out", intrinsics=paths["intrinsics"])
+    assert result["scale_source"] == "none" and result["reference"] is None
+    assert result["measurements"]["stick_length"]["value_mm"] is None
+    assert any("bank card" in m and "ignored" in m for m in result["messages"])
+    assert result["side"] == ("right" if int(sample["side"]) else "left")
+
+
 def test_photo_without_a_foot_is_refused(tmp_path, capsys):
     rng = np.random.default_rng(0)
     floor = (rng.normal(120, 8, (480, 640, 3))).clip(0, 255).astype(np.uint8)

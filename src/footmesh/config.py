@@ -256,6 +256,11 @@ class MeasureConfig:
     random; ratios 2.0-24) and 19 of 20 guided depth photos (the wrong one at 1.4, the 17 at 3 or more right).
     Not RGB: its decoder picked the true side on 14 of 20."""
     decoder_side_ratio: float = 3.0
+    plausible_length_mm: tuple[float, float] = (185.0, 335.0)
+    """A scaled fit whose foot is not this long (5 SD beyond the shape population's women's and men's mean
+    lengths, 246.5 +- 12.1 and 271.6 +- 12.7 mm) is wrong: with a reference object the object was something
+    else (the cut top of a trouser leg passed as a card: 133 mm short) and the photo is measured unscaled; with
+    depth the photo is refused (a fit 80 mm short, guided eval seed 4242). The model knows adult feet only."""
     refine_silhouette: bool = True
     """Snap the networks' silhouette to the photo's edges (``cues.refine``; needs the RGB image)."""
     rgbd_with_depth_network: bool = True

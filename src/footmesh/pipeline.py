@@ -33,6 +33,7 @@ from footmesh.sizes import shoe_sizes
 log = logging.getLogger("footmesh.pipeline")
 
 RESULT_FORMAT = "footmesh-result-1"
+_REFERENCE_NAMES = {"a4": "an A4 sheet", "card": "a bank card", "marker": "the printed marker"}
 
 
 class PipelineError(ValueError):
@@ -248,7 +249,7 @@ class _Files:
 def run_pipeline(photo: Photo, side: str, config: MeasureConfig, input: str = "auto") -> tuple[dict, _Files]:
     """Everything after loading: the result dict and the arrays of the files to write."""
     from footmesh.cues.reference import detect_reference
-    from footmesh.fit import FitConfig, FitInit, fit_foot, mesh_side_residuals
+    from footmesh.fit import FitConfig, FitInit, canonical_measures, fit_foot, mesh_side_residuals
 
     timings = {}
     t = time.perf_counter()
@@ -286,15 +287,35 @@ def run_pipeline(photo: Photo, side: str, config: MeasureConfig, input: str = "a
         nearer = min(residuals, key=residuals.get)
         if max(residuals.values()) >= config.decoder_side_ratio * residuals[nearer]:
             side, side_source = nearer, "decoder"  # told plainly: the other side's fit is not needed
-    fit = fit_foot(
-        located.cues,
-        K,
-        depth_mm=None if kind == "rgb" else depth,
-        cam_from_floor=None if reference is None else reference.cam_from_floor,
-        side=side,
-        init=init,
-        config=FitConfig(joint_sigma_px=joint_sigma_px(located.crop.side, config)),
-    )
+
+    def fitted(floor: np.ndarray | None):
+        return fit_foot(
+            located.cues,
+            K,
+            depth_mm=None if kind == "rgb" else depth,
+            cam_from_floor=floor,
+            side=side,
+            init=init,
+            config=FitConfig(joint_sigma_px=joint_sigma_px(located.crop.side, config)),
+        )
+
+    fit = fitted(None if reference is None else reference.cam_from_floor)
+    low, high = config.plausible_length_mm
+    length_mm = canonical_measures(fit.shape)[0] if fit.scaled else None
+    if length_mm is not None and not low <= length_mm <= high:
+        if reference is None:
+            raise PipelineError(
+                f"the foot fitted to this photo would be {length_mm:.0f} mm long, outside the {low:.0f}-{high:.0f} mm "
+                "of adult feet, so the fit went wrong; retake it from above and to the side, the whole foot flat on "
+                "the floor and the leg out of the way"
+            )
+        # the object taken for a reference was something else (the cut top of a trouser leg once passed as a card)
+        messages.append(
+            f"the rectangle taken for {_REFERENCE_NAMES[reference.kind]} would make the foot {length_mm:.0f} mm "
+            f"long, outside the {low:.0f}-{high:.0f} mm of adult feet, so it was ignored"
+        )
+        reference = None
+        fit = fitted(None)
     timings["fit_s"] = time.perf_counter() - t
     axis = fit.cam_from_foot[:3, 0]  # the foot's heel-to-toe direction in the camera frame
     centre = fit.vertices_cam.mean(axis=0)

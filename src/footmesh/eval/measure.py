@@ -51,6 +51,8 @@ class Record:
     seconds: float = math.nan
     stage_seconds: dict[str, float] = field(default_factory=dict)
     """The pipeline's own timings (result.json ``timings_s``): cues, reference, fit, measure."""
+    fit_loss: float = math.nan
+    """The fit's final cost (result.json ``fit.loss``): how well the model explains the photo."""
 
 
 @dataclass
@@ -173,6 +175,7 @@ def evaluate_mode(
                 seconds=time.perf_counter() - t0,
                 scale_source=res["scale_source"],
                 stage_seconds=dict(res["timings_s"]),
+                fit_loss=float(res["fit"]["loss"]),
             )
             rec.side_ok = res["side"] == side
             m = res["measurements"]
