@@ -228,6 +228,20 @@ def test_a_rectangle_that_would_make_the_foot_implausible_gives_no_scale(tmp_pat
     assert result["side"] == ("right" if int(sample["side"]) else "left")
 
 
+@pytest.mark.slow
+def test_an_rgbd_fit_that_misses_the_outline_is_refused(tmp_path):
+    """A guided eval photo (seed 4242, RGB-D photo 38; the camera looks down the leg) whose fit followed 78 % of the
+    foot's outline and came out 80 mm short: refused, not measured."""
+    from footmesh.eval.measure import _write_inputs
+    from footmesh.synth.render import Renderer
+    from footmesh.synth.scene import guided_view_config
+
+    sample = Renderer(guided_view_config(size=640, reference="none")).render(4242 + 1, 38)
+    paths = _write_inputs(sample, tmp_path, with_depth=True)
+    with pytest.raises(PipelineError, match="outline"):
+        measure_photo(paths["image"], tmp_path / "out", depth=paths["depth"], intrinsics=paths["intrinsics"])
+
+
 def test_photo_without_a_foot_is_refused(tmp_path, capsys):
     rng = np.random.default_rng(0)
     floor = (rng.normal(120, 8, (480, 640, 3))).clip(0, 255).astype(np.uint8)

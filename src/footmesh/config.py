@@ -256,6 +256,11 @@ class MeasureConfig:
     random; ratios 2.0-24) and 19 of 20 guided depth photos (the wrong one at 1.4, the 17 at 3 or more right).
     Not RGB: its decoder picked the true side on 14 of 20."""
     decoder_side_ratio: float = 3.0
+    min_depth_contour_followed: float = 0.85
+    """With a depth map, refuse the photo when less of the foot's outline than this lies within 2 px of the fitted
+    model's (``FootFit.quality["contour_within_2px"]``). Guided photos, seeds 4242 (60) and 777 (20), RGB-D and
+    depth: 0.88-1.0 on the 159 measured within 18 mm, 0.78 on the one fit 80 mm short. Not for plain photos (no
+    such separation there)."""
     plausible_length_mm: tuple[float, float] = (185.0, 335.0)
     """A scaled fit whose foot is not this long (5 SD beyond the shape population's women's and men's mean
     lengths, 246.5 +- 12.1 and 271.6 +- 12.7 mm) is wrong: with a reference object the object was something

@@ -338,6 +338,13 @@ def run_pipeline(photo: Photo, side: str, config: MeasureConfig, input: str = "a
             f"the foot model could not be fitted to this photo ({100 * outside:.0f} % of the fitted foot falls "
             "outside the foot in the photo); retake it from above and to the side, the whole foot flat on the floor"
         )
+    followed = fit.quality.get("contour_within_2px", 1.0)
+    if kind != "rgb" and followed < config.min_depth_contour_followed:
+        raise PipelineError(
+            f"the foot model could not be fitted to this photo (only {100 * followed:.0f} % of the foot's outline "
+            "lies within 2 px of the fitted foot's); retake it from above and to the side, the whole foot flat on "
+            "the floor and the leg out of the way"
+        )
 
     t = time.perf_counter()
     model = default_model()

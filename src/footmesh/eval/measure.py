@@ -53,6 +53,8 @@ class Record:
     """The pipeline's own timings (result.json ``timings_s``): cues, reference, fit, measure."""
     fit_loss: float = math.nan
     """The fit's final cost (result.json ``fit.loss``): how well the model explains the photo."""
+    fit_quality: dict[str, float] = field(default_factory=dict)
+    """result.json ``fit.quality``: contour within 2 px, model outside, joint error, depth residual."""
 
 
 @dataclass
@@ -176,6 +178,7 @@ def evaluate_mode(
                 scale_source=res["scale_source"],
                 stage_seconds=dict(res["timings_s"]),
                 fit_loss=float(res["fit"]["loss"]),
+                fit_quality=dict(res["fit"]["quality"]),
             )
             rec.side_ok = res["side"] == side
             m = res["measurements"]
