@@ -223,15 +223,13 @@ def mesh_side_residuals(vertices_cam: np.ndarray, model: FootModel | None = None
     true side's residual is far the smaller (RGB-D decoder on 52 guided and random photos: 2-26 mm against
     34-58 mm, every side right)."""
     model = model if model is not None else default_model()
-    target = torch.as_tensor(np.asarray(vertices_cam, dtype=np.float64))[None]
-    out = {}
-    for side in SIDES:
-        with torch.no_grad():
-            rest = model(torch.zeros(1, model.num_components), side=side).vertices[0].double()
-        rot, scale, trans = weighted_procrustes(rest, target, torch.ones(rest.shape[0], dtype=torch.float64))
-        placed = scale[0] * rest @ rot[0].T + trans[0]
-        out[side] = float((placed - target[0]).norm(dim=1).mean())
-    return out
+    with torch.no_grad():
+        rest = model(torch.zeros(len(SIDES), model.num_components), side=list(SIDES)).vertices.double()  # (2, V, 3)
+    target = torch.as_tensor(np.asarray(vertices_cam, dtype=np.float64))[None].expand_as(rest)
+    rot, scale, trans = weighted_procrustes(rest, target, torch.ones(rest.shape[1], dtype=torch.float64))
+    placed = scale[:, None, None] * rest @ rot.transpose(1, 2) + trans[:, None]
+    residuals = (placed - target).norm(dim=2).mean(dim=1)
+    return dict(zip(SIDES, residuals.tolist(), strict=True))
 
 
 @dataclass(frozen=True, eq=False)
@@ -1327,8 +1325,8 @@ def _fit(cues, K, depth_mm, cam_from_floor, side, init, config, model) -> FootFi
     arrays = _model_arrays(model, config.num_vertices)
     sides = SIDES if side == "auto" else (side,)
 
-    def rigid_starts(s: str) -> list[tuple[_SideProblem, _State, _Association, int]]:
-        """The rigid stage from every start: the given ones first, then the PnP ones by cost."""
+    def rigid_starts(s: str) -> tuple[list, list]:
+        """The rigid stage from every start: the given ones (all carried on) and the PnP ones ranked by cost."""
         torch.set_num_threads(1)  # per thread with OpenMP builds
 
         def solved(state: _State) -> tuple[_SideProblem, _State, _Association, int]:
@@ -1340,8 +1338,7 @@ def _fit(cues, K, depth_mm, cam_from_floor, side, init, config, model) -> FootFi
             return problem, *problem.solve(state, config.stages[:1])
 
         pnp, given = _initial_states(ev, arrays, s, init)
-        given_count[s] = len(given)
-        return [solved(x) for x in given] + sorted((solved(x) for x in pnp), key=lambda x: x[2].cost)
+        return [solved(x) for x in given], sorted((solved(x) for x in pnp), key=lambda x: x[2].cost)
 
     def carried_on(starts: list) -> list[tuple[_SideProblem, _State, _Association, int]]:
         torch.set_num_threads(1)
@@ -1354,17 +1351,15 @@ def _fit(cues, K, depth_mm, cam_from_floor, side, init, config, model) -> FootFi
                 return dict(zip(args, pool.map(fn, args.values()), strict=True))
         return {s: fn(a) for s, a in args.items()}
 
-    given_count: dict[str, int] = {}
     starts = per_side(rigid_starts, {s: s for s in sides})
-    carried = {s: given_count[s] + config.full_starts for s in sides}
-    ends = per_side(carried_on, {s: starts[s][: carried[s]] for s in sides})
+    ends = per_side(carried_on, {s: given + ranked[: config.full_starts] for s, (given, ranked) in starts.items()})
     costs = {s: min(e[2].cost for e in ends[s]) for s in sides}
     if len(sides) > 1 and max(costs.values()) < config.side_tie_ratio * min(costs.values()):
         # a near tie between the sides: the starts left behind may hold a better basin for either
-        more = per_side(carried_on, {s: starts[s][carried[s] :] for s in sides})
+        more = per_side(carried_on, {s: ranked[config.full_starts :] for s, (_, ranked) in starts.items()})
         ends = {s: ends[s] + more[s] for s in sides}
     fitted = {s: min(ends[s], key=lambda x: x[2].cost) for s in sides}
-    iterations = sum(x[3] for s in sides for x in starts[s] + ends[s])
+    iterations = sum(x[3] for s in sides for x in starts[s][0] + starts[s][1] + ends[s])
     best = min(fitted, key=lambda s: fitted[s][2].cost)
     problem, state, assoc, _ = fitted[best]
     covariance = problem.covariance(state, assoc)
