@@ -229,17 +229,32 @@ def test_a_rectangle_that_would_make_the_foot_implausible_gives_no_scale(tmp_pat
 
 
 @pytest.mark.slow
-def test_an_rgbd_fit_that_misses_the_outline_is_refused(tmp_path):
-    """A guided eval photo (seed 4242, RGB-D photo 38; the camera looks down the leg) whose fit followed 78 % of the
-    foot's outline and came out 80 mm short: refused, not measured."""
+def test_an_rgbd_photo_of_a_foot_mostly_hidden_by_the_leg_is_refused(tmp_path):
+    """A guided eval photo (seed 4242, RGB-D photo 38): the camera looks down the leg, which hides the heel and
+    midfoot. Fits of it came out 70-80 mm short with 73 % of the fitted foot on the silhouette: refused, not
+    measured."""
     from footmesh.eval.measure import _write_inputs
     from footmesh.synth.render import Renderer
     from footmesh.synth.scene import guided_view_config
 
     sample = Renderer(guided_view_config(size=640, reference="none")).render(4242 + 1, 38)
     paths = _write_inputs(sample, tmp_path, with_depth=True)
-    with pytest.raises(PipelineError, match="outline"):
+    with pytest.raises(PipelineError, match="shows in the photo .* hides the rest|outline"):
         measure_photo(paths["image"], tmp_path / "out", depth=paths["depth"], intrinsics=paths["intrinsics"])
+    assert not (tmp_path / "out" / "result.json").exists()
+
+
+@pytest.mark.slow
+def test_an_rgbd_fit_that_misses_the_outline_or_hides_the_foot_is_refused(tmp_path):
+    ex = next(e for e in examples() if e.depth is not None)
+    # every fit "fails" one check at a time: the refusal paths, not numbers
+    for strict, message in [
+        (MeasureConfig(min_depth_contour_followed=1.01), "outline"),
+        (MeasureConfig(min_depth_foot_shown=1.01), "hides the rest"),
+    ]:
+        with pytest.raises(PipelineError, match=message):
+            measure_photo(ex.image, tmp_path, depth=ex.depth, intrinsics=ex.intrinsics, config=strict)
+        assert not (tmp_path / "result.json").exists()
 
 
 def test_photo_without_a_foot_is_refused(tmp_path, capsys):
@@ -300,3 +315,27 @@ def test_the_mesh_decoder_reconstructs_the_foot_in_the_photos_camera_frame():
         assert decoder_mesh(located, rgb, np.zeros_like(depth), K, "rgbd") is None
     error = np.linalg.norm(mesh - sample["vertices"], axis=1).mean()
     assert error < 15.0, f"mean vertex error {error:.1f} mm"
+
+
+def test_foot_shown_is_the_share_of_the_fitted_foot_on_the_silhouette():
+    from types import SimpleNamespace
+
+    import torch
+
+    from footmesh.model.layer import default_model
+    from footmesh.pipeline import foot_shown, projected_mask
+
+    model = default_model()
+    with torch.no_grad():
+        v = model(torch.zeros(1, model.num_components)).vertices[0].double().numpy()
+    # seen from above, 500 mm away: foot frame z up -> camera z forward
+    cam = v @ np.diag([1.0, -1.0, -1.0]) + [-130.0, 0.0, 500.0]
+    K = np.array([[800.0, 0, 320], [0, 800.0, 240], [0, 0, 1]])
+    fit = SimpleNamespace(side="left", vertices_cam=cam)
+    whole = projected_mask(cam, model.faces("left").numpy(), K, (480, 640))
+    assert foot_shown(fit, whole, K) == pytest.approx(1.0)
+    assert foot_shown(fit, np.zeros_like(whole), K) == 0.0
+    heel_hidden = whole.copy()
+    heel_hidden[:, :320] = False  # the heel half (x < 0 in the image) hidden by the leg
+    assert 0.3 < foot_shown(fit, heel_hidden, K) < 0.7
+    assert projected_mask(cam - [0, 0, 600.0], model.faces("left").numpy(), K, (480, 640)) is None

@@ -18,6 +18,7 @@ Two solvers:
 
 from __future__ import annotations
 
+import functools
 import math
 
 import numpy as np
@@ -415,6 +416,14 @@ NATURAL_POSE_SD = {
     "distal_individual": 0.05,
 }
 """Spreads (radians) of ``sample_poses(method="natural")``; see its docstring."""
+
+
+@functools.lru_cache(maxsize=1)
+def natural_pose_moments(samples: int = 20000) -> tuple[np.ndarray, np.ndarray]:
+    """(22,) mean and (22,) SD, radians, of ``natural_angles`` (a fixed draw): the everyday poses' spread per DOF,
+    which the fit's pose prior scales (``fit.FitConfig.angle_prior_sd_factor``)."""
+    angles = natural_angles(samples, np.random.default_rng(0)).numpy()
+    return angles.mean(axis=0), angles.std(axis=0)
 
 
 def natural_angles(n: int, generator: torch.Generator | np.random.Generator | int | None = None) -> torch.Tensor:
