@@ -284,11 +284,11 @@ class MeasureConfig:
     outside the foot's silhouette (``FootFit.quality``): the fit went wrong and its millimetres would be too. Good
     fits on the synthetic eval: 0.01-0.08; the gross failures (50-140 mm off): 0.5-0.9."""
     uncertainty_factor: dict[str, float] = field(
-        default_factory=lambda: {"depth": 1.15, "a4": 1.73, "card": 1.73, "marker": 1.73}
+        default_factory=lambda: {"depth": 1.04, "a4": 1.56, "card": 1.56, "marker": 1.56}
     )
     """Calibration of the fit's covariance-based SD per scale source: the old factor times the 68th percentile of
-    |error| / uncertainty over length and ball width on ``footmesh eval measure --views guided --seed 777 --n 20``
-    (0.547 over 80 depth errors, RGB-D and depth alone: 2.1 -> 1.15; 0.598 over 32 with a reference object:
-    2.9 -> 1.73; re-measured after the fit's contour cut and second start), so that about 68 % of true errors fall
-    within one uncertainty; checked on the seed-4242 photos in the README."""
+    |error| / uncertainty over length and ball width on ``footmesh eval measure --views guided --seed 777 --n 60``
+    (0.900 over 224 depth errors, RGB-D and depth alone: 1.15 -> 1.04; 0.902 over 112 with a reference object:
+    1.73 -> 1.56; re-measured after the fit's everyday-pose prior), so that about 68 % of true errors fall within
+    one uncertainty; checked on the seed-4242 photos in the README."""
     uncertainty_floor_mm: float = 0.5
