@@ -148,6 +148,14 @@ def test_a_sheet_stood_on_that_shows_little_of_its_far_side():
     _check_found(detect_reference(sample["rgb"], sample["K"], exclude_mask=exclude), sample, "a4")
 
 
+def test_a_card_in_line_with_a_plank_seam():
+    """A guided photo (seed 999, 4): a seam of the planks runs on from a corner of the card in line with its short
+    side; one such line does not make the card a piece of the floor's pattern (``MIN_CONTINUATIONS``)."""
+    sample = Renderer(guided_view_config(size=640, reference="card")).render(999, 4)
+    exclude = cv2.dilate(_foot_and_leg(sample).astype(np.uint8), np.ones((15, 15), np.uint8)) > 0
+    _check_found(detect_reference(sample["rgb"], sample["K"], exclude_mask=exclude), sample, "card")
+
+
 def test_no_object_no_reference():
     for sample in _scenes("none", 3, lambda sample, scene: True):
         assert int(sample["ref_type"]) == REFERENCE_KINDS.index("none")
