@@ -174,9 +174,10 @@ class FitConfig:
     """The pose prior's SD per DOF is this times the spread of everyday poses (``ik.natural_pose_moments``: 0.2
     rad for the midfoot, 0.05 for the ankle's roll and the toes' sideways turn, 0.35 for the toes' flexion). A flat
     0.5 rad for every DOF let the pose make up for the silhouette's errors (the hindfoot swung to shorten or lengthen
-    the foot where the heel is hidden): guided photos with a reference, seeds 4242 / 777 / 999 (60 each), length
-    MAE 4.34 / 6.48 / 4.08 -> 3.97 / 4.89 / 3.57 mm, width 2.83 / 3.62 / 3.19 -> 2.78 / 2.99 / 3.04 (factors 1, 1.5,
-    2.5, 3: 5.19, 4.40, 4.36, worse on 777; docs/fit.md)."""
+    the foot where the heel is hidden): guided photos with a reference, seeds 4242 / 777 / 999 (60 each, two at a
+    time), length MAE 4.34 / 6.48 / 4.08 -> 4.46 / 4.99 / 3.40 mm, width 2.83 / 3.62 / 3.19 -> 2.64 / 3.15 / 2.93.
+    A first version (the toes' curl centred at 0.27 rad): factors 1.5 / 2 / 2.5 gave 4.40 / 4.14 / 4.36 mm over the
+    three seeds, 1 and 3 were worse on 777 (docs/fit.md)."""
     num_vertices: int = 1200
     contour_samples: int = 400
     contour_max_height_mm: float = 70.0

@@ -480,7 +480,9 @@ JOINT_COLOURS = [
 ]
 
 
-def projected_mask(vertices_cam: np.ndarray, faces: np.ndarray, K: np.ndarray, size: tuple[int, int]):
+def projected_mask(
+    vertices_cam: np.ndarray, faces: np.ndarray, K: np.ndarray, size: tuple[int, int]
+) -> np.ndarray | None:
     """(H, W) bool: the pixels that the mesh (V, 3) mm, camera frame, covers; None when a vertex is behind the
     camera."""
     if not np.all(vertices_cam[:, 2] > 0):
