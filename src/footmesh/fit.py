@@ -264,7 +264,8 @@ class FootFit:
         quality: how well the fit explains the image, to refuse a bad fit: ``contour_within_2px`` (fraction of
             silhouette contour samples within 2 px of the model's outline), ``vertices_outside_2px`` (fraction of
             the model's visible vertices more than 2 px outside the silhouette), ``joint_error_px``
-            (confidence-weighted mean), ``depth_median_mm`` (with depth).
+            (confidence-weighted mean), ``depth_median_mm`` (with depth), ``foot_shown`` (fraction of the model
+            below the ankle that the silhouette shows: ``foot_shown``).
         iterations: LM iterations taken (all sides and starts). seconds: wall time of the whole fit.
     """
 
@@ -627,6 +628,37 @@ def _evidence(cues: Cues, K: np.ndarray, depth_mm, cam_from_floor, config: FitCo
         depth_points=depth_points,
         floor=floor,
     )
+
+
+def projected_mask(
+    vertices_cam: np.ndarray, faces: np.ndarray, K: np.ndarray, size: tuple[int, int]
+) -> np.ndarray | None:
+    """(H, W) bool: the pixels that the mesh (V, 3) mm, camera frame, covers; None when a vertex is behind the
+    camera. OpenCV's polygon fill, not ``synth.raster``: no depth is needed, and no numba compile on a cold start."""
+    if not np.all(vertices_cam[:, 2] > 0):
+        return None
+    uv = (vertices_cam[:, :2] / vertices_cam[:, 2:3]) @ K[:2, :2].T + K[:2, 2]
+    raster = np.zeros(size, np.uint8)
+    # one triangle at a time: fillPoly fills a list of overlapping polygons even-odd, leaving holes
+    for tri in np.round(uv[faces] * 4).astype(np.int32):  # 2 fractional bits
+        cv2.fillConvexPoly(raster, tri, 1, lineType=cv2.LINE_8, shift=2)
+    return raster > 0
+
+
+def foot_shown(
+    fit, mask: np.ndarray, K: np.ndarray, model: FootModel | None = None, max_height_mm: float | None = None
+) -> float:
+    """Fraction of the fitted foot's image below the ankle (rest height under ``max_height_mm``, default
+    ``FitConfig.contour_max_height_mm``) that the photo's silhouette (H, W) bool shows: the rest is hidden (by
+    the leg, a trouser, the image's edge). ``fit``: anything with ``side`` and ``vertices_cam`` (V, 3) mm."""
+    model = model if model is not None else default_model()
+    max_height_mm = FitConfig.contour_max_height_mm if max_height_mm is None else max_height_mm
+    low = model.mean_vertices[:, 2].detach().numpy() < max_height_mm
+    faces = model.faces(fit.side).numpy()
+    covered = projected_mask(fit.vertices_cam, faces[low[faces].all(axis=1)], K, mask.shape)
+    if covered is None or not covered.any():
+        return 0.0
+    return float((covered & mask).sum() / covered.sum())
 
 
 def _bilinear(image: np.ndarray, uv: np.ndarray) -> np.ndarray:
@@ -1390,7 +1422,7 @@ def _fit(cues, K, depth_mm, cam_from_floor, side, init, config, model) -> FootFi
     joints = out.joints[0].double().numpy() @ state.rotation.T + state.translation
     pose = np.eye(4)
     pose[:3, :3], pose[:3, 3] = state.rotation, state.translation
-    return FootFit(
+    fit = FootFit(
         side=best,
         shape=state.shape.copy(),
         angles=state.angles.copy(),
@@ -1406,6 +1438,8 @@ def _fit(cues, K, depth_mm, cam_from_floor, side, init, config, model) -> FootFi
         quality=quality,
         iterations=iterations,
     )
+    shown = foot_shown(fit, ev.mask, ev.K, model, config.contour_max_height_mm)
+    return replace(fit, quality={**quality, "foot_shown": shown})
 
 
 # ----------------------------------------------------------------------------------------------------------

@@ -332,7 +332,6 @@ def run_pipeline(photo: Photo, side: str, config: MeasureConfig, input: str = "a
             "end of the foot is hidden behind the near one and its length cannot be measured; photograph it from "
             "the side and above"
         )
-    shown = foot_shown(fit, located.mask, K)
     outside = fit.quality.get("vertices_outside_2px", 0.0)
     if outside > config.max_model_outside:
         raise PipelineError(
@@ -346,6 +345,7 @@ def run_pipeline(photo: Photo, side: str, config: MeasureConfig, input: str = "a
             "lies within 2 px of the fitted foot's); retake it from above and to the side, the whole foot flat on "
             "the floor and the leg out of the way"
         )
+    shown = fit.quality.get("foot_shown", 1.0)
     if kind != "rgb" and shown < config.min_depth_foot_shown:
         raise PipelineError(
             f"only {100 * shown:.0f} % of the fitted foot below the ankle shows in the photo (the leg or a trouser "
@@ -411,7 +411,7 @@ def run_pipeline(photo: Photo, side: str, config: MeasureConfig, input: str = "a
             "loss": float(fit.loss),
             "iterations": int(fit.iterations),
             "terms": fit.loss_terms,
-            "quality": {**{k: float(v) for k, v in fit.quality.items()}, "foot_shown": round(shown, 4)},
+            "quality": {k: float(v) for k, v in fit.quality.items()},
         },
         "timings_s": {k: round(v, 3) for k, v in timings.items()},
         "messages": messages,
@@ -480,35 +480,6 @@ JOINT_COLOURS = [
 ]
 
 
-def projected_mask(
-    vertices_cam: np.ndarray, faces: np.ndarray, K: np.ndarray, size: tuple[int, int]
-) -> np.ndarray | None:
-    """(H, W) bool: the pixels that the mesh (V, 3) mm, camera frame, covers; None when a vertex is behind the
-    camera."""
-    if not np.all(vertices_cam[:, 2] > 0):
-        return None
-    uv = (vertices_cam[:, :2] / vertices_cam[:, 2:3]) @ K[:2, :2].T + K[:2, 2]
-    raster = np.zeros(size, np.uint8)
-    # one triangle at a time: fillPoly fills a list of overlapping polygons even-odd, leaving holes
-    for tri in np.round(uv[faces] * 4).astype(np.int32):  # 2 fractional bits
-        cv2.fillConvexPoly(raster, tri, 1, lineType=cv2.LINE_8, shift=2)
-    return raster > 0
-
-
-def foot_shown(fit, mask: np.ndarray, K: np.ndarray, model=None) -> float:
-    """Fraction of the fitted foot's image below the ankle (rest height under ``FitConfig.contour_max_height_mm``)
-    that the photo's silhouette (H, W) bool shows: the rest is hidden (by the leg, a trouser, the image's edge)."""
-    from footmesh.fit import FitConfig
-
-    model = model or default_model()
-    low = model.mean_vertices[:, 2].numpy() < FitConfig().contour_max_height_mm
-    faces = model.faces(fit.side).numpy()
-    covered = projected_mask(fit.vertices_cam, faces[low[faces].all(axis=1)], K, mask.shape)
-    if covered is None or not covered.any():
-        return 0.0
-    return float((covered & mask).sum() / covered.sum())
-
-
 def draw_overlay(rgb: np.ndarray, located: Located, fit, K: np.ndarray, reference) -> np.ndarray:
     """The photo with the silhouette (cyan), the fitted mesh's outline (magenta), the joints (by toe) and the
     reference object (yellow)."""
@@ -517,6 +488,8 @@ def draw_overlay(rgb: np.ndarray, located: Located, fit, K: np.ndarray, referenc
     thick = max(1, int(round(max(h, w) / 400)))
     contours, _ = cv2.findContours(located.mask.astype(np.uint8), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
     cv2.drawContours(out, contours, -1, (0, 255, 255), thick)
+    from footmesh.fit import projected_mask
+
     raster = projected_mask(fit.vertices_cam, default_model().faces(fit.side).numpy(), K, (h, w))
     if raster is not None:
         mesh_contours, _ = cv2.findContours(raster.astype(np.uint8), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
