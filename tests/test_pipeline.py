@@ -213,8 +213,9 @@ def test_a_photo_without_reference_is_unscaled(tmp_path):
 @pytest.mark.slow
 def test_a_rectangle_that_would_make_the_foot_implausible_gives_no_scale(tmp_path):
     """A guided eval photo without any reference object (seed 4242, rgb photo 25): the cut top of the trouser leg
-    looks like a card seen in perspective and once made the foot 133 mm short. The foot it implies is no adult's,
-    so it is ignored and said so: the photo is measured unscaled."""
+    looks like a card seen in perspective. Its floor once made the foot 133 mm short (no adult's); with the
+    fine-tuned networks the foot fitted on it misses the photo's foot instead (63 % outside). Either way it is
+    ignored and said so: the photo is measured unscaled."""
     from footmesh.eval.measure import _write_inputs
     from footmesh.synth.render import Renderer
     from footmesh.synth.scene import guided_view_config

@@ -302,18 +302,24 @@ def run_pipeline(photo: Photo, side: str, config: MeasureConfig, input: str = "a
     fit = fitted(None if reference is None else reference.cam_from_floor)
     low, high = config.plausible_length_mm
     length_mm = canonical_measures(fit.shape)[0] if fit.scaled else None
-    if length_mm is not None and not low <= length_mm <= high:
-        if reference is None:
-            raise PipelineError(
-                f"the foot fitted to this photo would be {length_mm:.0f} mm long, outside the {low:.0f}-{high:.0f} mm "
-                "of adult feet, so the fit went wrong; retake it from above and to the side, the whole foot flat on "
-                "the floor and the leg out of the way"
-            )
-        # the object taken for a reference was something else (the cut top of a trouser leg once passed as a card)
-        messages.append(
-            f"the rectangle taken for {_REFERENCE_NAMES[reference.kind]} would make the foot {length_mm:.0f} mm "
-            f"long, outside the {low:.0f}-{high:.0f} mm of adult feet, so it was ignored"
+    implausible = length_mm is not None and not low <= length_mm <= high
+    if implausible and reference is None:
+        raise PipelineError(
+            f"the foot fitted to this photo would be {length_mm:.0f} mm long, outside the {low:.0f}-{high:.0f} mm "
+            "of adult feet, so the fit went wrong; retake it from above and to the side, the whole foot flat on "
+            "the floor and the leg out of the way"
         )
+    outside = fit.quality.get("vertices_outside_2px", 0.0)
+    if reference is not None and (implausible or outside > config.max_model_outside):
+        # the object taken for a reference was something else (the cut top of a trouser leg passed as a card): the
+        # floor it implies makes no adult foot, or none that stands on it and covers the foot in the photo
+        name = _REFERENCE_NAMES[reference.kind]
+        why = (
+            f"would make the foot {length_mm:.0f} mm long, outside the {low:.0f}-{high:.0f} mm of adult feet"
+            if implausible
+            else f"implies a floor no fitted foot stands on ({100 * outside:.0f} % of it fell outside the foot)"
+        )
+        messages.append(f"the rectangle taken for {name} {why}, so it was ignored")
         reference = None
         fit = fitted(None)
     timings["fit_s"] = time.perf_counter() - t
