@@ -284,11 +284,11 @@ class MeasureConfig:
     outside the foot's silhouette (``FootFit.quality``): the fit went wrong and its millimetres would be too. Good
     fits on the synthetic eval: 0.01-0.08; the gross failures (50-140 mm off): 0.5-0.9."""
     uncertainty_factor: dict[str, float] = field(
-        default_factory=lambda: {"depth": 1.04, "a4": 1.56, "card": 1.56, "marker": 1.56}
+        default_factory=lambda: {"depth": 0.91, "a4": 1.39, "card": 1.39, "marker": 1.39}
     )
     """Calibration of the fit's covariance-based SD per scale source: the old factor times the 68th percentile of
     |error| / uncertainty over length and ball width on ``footmesh eval measure --views guided --seed 777 --n 60``
-    (0.900 over 224 depth errors, RGB-D and depth alone: 1.15 -> 1.04; 0.902 over 112 with a reference object:
-    1.73 -> 1.56; re-measured after the fit's everyday-pose prior), so that about 68 % of true errors fall within
+    (0.879 over 224 depth errors, RGB-D and depth alone: 1.04 -> 0.91; 0.888 over 114 with a reference object:
+    1.56 -> 1.39; re-measured with the fine-tuned 2D-cues networks), so that about 68 % of true errors fall within
     one uncertainty; checked on the seed-4242 photos in the README."""
     uncertainty_floor_mm: float = 0.5
