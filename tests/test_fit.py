@@ -347,19 +347,16 @@ def test_synthetic_check_prints_one_line_per_mode(capsys):
 
 
 def test_foot_shown_is_the_share_of_the_fitted_foot_on_the_silhouette():
-    from types import SimpleNamespace
-
     model = default_model()
     with torch.no_grad():
         v = model(torch.zeros(1, model.num_components)).vertices[0].double().numpy()
     # seen from above, 500 mm away: foot frame z up -> camera z forward
     cam = v @ np.diag([1.0, -1.0, -1.0]) + [-130.0, 0.0, 500.0]
     K = np.array([[800.0, 0, 320], [0, 800.0, 240], [0, 0, 1]])
-    fit = SimpleNamespace(side="left", vertices_cam=cam)
     whole = projected_mask(cam, model.faces("left").numpy(), K, (480, 640))
-    assert foot_shown(fit, whole, K) == pytest.approx(1.0)
-    assert foot_shown(fit, np.zeros_like(whole), K) == 0.0
+    assert foot_shown(cam, "left", whole, K) == pytest.approx(1.0)
+    assert foot_shown(cam, "left", np.zeros_like(whole), K) == 0.0
     heel_hidden = whole.copy()
     heel_hidden[:, :320] = False  # the heel half (x < 0 in the image) hidden by the leg
-    assert 0.3 < foot_shown(fit, heel_hidden, K) < 0.7
+    assert 0.3 < foot_shown(cam, "left", heel_hidden, K) < 0.7
     assert projected_mask(cam - [0, 0, 600.0], model.faces("left").numpy(), K, (480, 640)) is None

@@ -265,7 +265,7 @@ class FootFit:
             silhouette contour samples within 2 px of the model's outline), ``vertices_outside_2px`` (fraction of
             the model's visible vertices more than 2 px outside the silhouette), ``joint_error_px``
             (confidence-weighted mean), ``depth_median_mm`` (with depth), ``foot_shown`` (fraction of the model
-            below the ankle that the silhouette shows: ``foot_shown``).
+            below the ankle that the silhouette shows, ``fit.foot_shown``).
         iterations: LM iterations taken (all sides and starts). seconds: wall time of the whole fit.
     """
 
@@ -646,16 +646,21 @@ def projected_mask(
 
 
 def foot_shown(
-    fit, mask: np.ndarray, K: np.ndarray, model: FootModel | None = None, max_height_mm: float | None = None
+    vertices_cam: np.ndarray,
+    side: str,
+    mask: np.ndarray,
+    K: np.ndarray,
+    model: FootModel | None = None,
+    max_height_mm: float | None = None,
 ) -> float:
-    """Fraction of the fitted foot's image below the ankle (rest height under ``max_height_mm``, default
-    ``FitConfig.contour_max_height_mm``) that the photo's silhouette (H, W) bool shows: the rest is hidden (by
-    the leg, a trouser, the image's edge). ``fit``: anything with ``side`` and ``vertices_cam`` (V, 3) mm."""
+    """Fraction of the fitted ``side`` foot's image (its vertices (V, 3) mm, camera frame) below the ankle (rest
+    height under ``max_height_mm``, default ``FitConfig.contour_max_height_mm``) that the photo's silhouette
+    (H, W) bool shows: the rest is hidden (by the leg, a trouser, the image's edge)."""
     model = model if model is not None else default_model()
     max_height_mm = FitConfig.contour_max_height_mm if max_height_mm is None else max_height_mm
     low = model.mean_vertices[:, 2].detach().numpy() < max_height_mm
-    faces = model.faces(fit.side).numpy()
-    covered = projected_mask(fit.vertices_cam, faces[low[faces].all(axis=1)], K, mask.shape)
+    faces = model.faces(side).numpy()
+    covered = projected_mask(vertices_cam, faces[low[faces].all(axis=1)], K, mask.shape)
     if covered is None or not covered.any():
         return 0.0
     return float((covered & mask).sum() / covered.sum())
@@ -1422,7 +1427,8 @@ def _fit(cues, K, depth_mm, cam_from_floor, side, init, config, model) -> FootFi
     joints = out.joints[0].double().numpy() @ state.rotation.T + state.translation
     pose = np.eye(4)
     pose[:3, :3], pose[:3, 3] = state.rotation, state.translation
-    fit = FootFit(
+    quality["foot_shown"] = foot_shown(vertices, best, ev.mask, ev.K, model, config.contour_max_height_mm)
+    return FootFit(
         side=best,
         shape=state.shape.copy(),
         angles=state.angles.copy(),
@@ -1438,8 +1444,6 @@ def _fit(cues, K, depth_mm, cam_from_floor, side, init, config, model) -> FootFi
         quality=quality,
         iterations=iterations,
     )
-    shown = foot_shown(fit, ev.mask, ev.K, model, config.contour_max_height_mm)
-    return replace(fit, quality={**quality, "foot_shown": shown})
 
 
 # ----------------------------------------------------------------------------------------------------------
