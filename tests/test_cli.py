@@ -43,3 +43,9 @@ def test_unknown_command_exits_non_zero():
     with pytest.raises(SystemExit) as exc:
         main(["no-such-command"])
     assert exc.value.code != 0
+
+
+def test_eval_real_on_a_folder_that_is_no_set_is_one_line_and_exit_2(tmp_path, capsys):
+    assert main(["eval", "real", "--set", str(tmp_path), "--no-progress"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "no labels.json" in err and len(err.splitlines()) == 1

@@ -404,6 +404,14 @@ def _add_eval_commands(sub: argparse._SubParsersAction) -> None:
     meas.add_argument("--json", help="also write per-photo records to this JSON file")
     meas.add_argument("--no-progress", action="store_true", help="no progress bar")
     meas.set_defaults(func=_run_eval_measure)
+    real = ev_sub.add_parser("real", help="the RGB silhouette on real photos with hand-drawn foot masks")
+    real.add_argument(
+        "--set", required=True, dest="real_set", help="folder with labels.json (../shared/real/rafiansyah)"
+    )
+    real.add_argument("--sheet", help="write a contact sheet of overlays to this PNG")
+    real.add_argument("--json", help="also write per-photo scores to this JSON file")
+    real.add_argument("--no-progress", action="store_true", help="no progress bar")
+    real.set_defaults(func=_run_eval_real)
     recon = ev_sub.add_parser("recon", help="Tables 4.4, 4.5 (and 4.6 per viewpoint) of the reconstruction networks")
     recon.add_argument("--input", choices=("rgb", "rgbd", "depth", "all"), default="all", help="network(s)")
     recon.add_argument("--data", required=True, help="test folder (footmesh synth, another seed than training)")
@@ -436,6 +444,16 @@ def _run_eval_measure(args: argparse.Namespace) -> int:
     if args.n < 1 or args.size < 128:
         raise UserError("--n must be at least 1 and --size at least 128")
     run_eval(modes, args.n, args.size, args.views, args.json, progress=not args.no_progress, seed=args.seed)
+    return 0
+
+
+def _run_eval_real(args: argparse.Namespace) -> int:
+    from footmesh.eval.real import run_eval
+
+    try:
+        print(run_eval(args.real_set, args.sheet, args.json, progress=not args.no_progress))
+    except ValueError as exc:
+        raise UserError(str(exc)) from None
     return 0
 
 

@@ -1,0 +1,183 @@
+"""``footmesh eval real``: the RGB silhouette on real photos with hand-drawn foot masks, and a contact sheet.
+
+A set is a folder with ``labels.json`` (per photo ``{photo, mask, size [w, h], feet: [{side, polygon_px}]}``),
+the photos and masks it names (mask pixels: 0 not foot, 1 left foot, 2 right foot), as in
+``../shared/real/rafiansyah``. The network runs on the whole photo padded to a square, as the pipeline's first
+pass does, and its silhouette (>= 0.5) is compared with the union of the hand-drawn feet. These photos are for
+evaluation only: nothing here trains or tunes on them.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from footmesh.report import atomic_path
+
+GOOD_IOU = 0.8
+"""A photo counts as segmented well from this IoU on (issue 18's share of photos)."""
+THUMB_PX = 240
+"""Longer side of one contact-sheet tile."""
+
+
+@dataclass(frozen=True)
+class PhotoScore:
+    """Silhouette agreement of one photo: ``iou``, ``precision`` (predicted foot pixels that are foot) and
+    ``recall`` (foot pixels predicted), each in [0, 1]; ``feet`` the hand-labelled sides."""
+
+    photo: str
+    iou: float
+    precision: float
+    recall: float
+    feet: tuple[str, ...]
+
+
+def mask_scores(predicted: np.ndarray, truth: np.ndarray) -> tuple[float, float, float]:
+    """IoU, precision and recall of two (H, W) bool masks (1.0 where both are empty, as nothing was missed)."""
+    if predicted.shape != truth.shape:
+        raise ValueError(f"masks of different sizes: {predicted.shape} and {truth.shape}")
+    both = float(np.logical_and(predicted, truth).sum())
+    n_pred, n_true = float(predicted.sum()), float(truth.sum())
+    union = n_pred + n_true - both
+    iou = both / union if union else 1.0
+    precision = both / n_pred if n_pred else (1.0 if not n_true else 0.0)
+    recall = both / n_true if n_true else 1.0
+    return iou, precision, recall
+
+
+def whole_photo_silhouette(rgb: np.ndarray) -> np.ndarray:
+    """(H, W) float32 foot probability of an (H, W, 3) uint8 photo: the RGB network on the photo padded to a
+    square, as the pipeline's first pass sees it."""
+    from footmesh.cues.predict import predict_cues
+    from footmesh.pipeline import CropBox, _cues_in_photo
+
+    h, w = rgb.shape[:2]
+    side = max(h, w)
+    whole = CropBox((w - side) // 2, (h - side) // 2, side)
+    return _cues_in_photo(predict_cues("rgb", whole.cut(rgb)), whole, w, h).silhouette
+
+
+def read_set(folder: str | os.PathLike) -> list[dict]:
+    """The entries of a real set's ``labels.json``, with a clear error when it is not one."""
+    folder = Path(folder)
+    labels = folder / "labels.json"
+    if not labels.is_file():
+        raise ValueError(f"{folder} is not a real-photo set: it has no labels.json")
+    try:
+        data = json.loads(labels.read_text())
+    except json.JSONDecodeError as exc:
+        raise ValueError(f"{labels} is not valid JSON ({exc.msg}, line {exc.lineno})") from None
+    entries = list(data.values()) if isinstance(data, dict) else data
+    for entry in entries:
+        missing = {"photo", "mask", "feet"} - set(entry)
+        if missing:
+            raise ValueError(f"{labels}: an entry lacks {', '.join(sorted(missing))}")
+    return entries
+
+
+def _read_rgb(path: Path) -> np.ndarray:
+    from footmesh.load import load_image
+
+    rgb, _ = load_image(path)
+    return rgb
+
+
+def evaluate_set(
+    folder: str | os.PathLike, sheet: str | os.PathLike | None = None, progress: bool = True
+) -> list[PhotoScore]:
+    """Score every photo of a real set; write a contact sheet of overlays to ``sheet`` (PNG) if given."""
+    from tqdm import tqdm
+
+    folder = Path(folder)
+    scores, tiles = [], []
+    for entry in tqdm(read_set(folder), desc=f"eval real {folder.name}", disable=not progress):
+        rgb = _read_rgb(folder / entry["photo"])
+        truth_img = cv2.imread(str(folder / entry["mask"]), cv2.IMREAD_GRAYSCALE)
+        if truth_img is None:
+            raise ValueError(f"{folder / entry['mask']} is not a readable mask image")
+        if truth_img.shape != rgb.shape[:2]:
+            raise ValueError(f"{entry['mask']} is {truth_img.shape[::-1]} px but its photo {rgb.shape[1::-1]}")
+        predicted = whole_photo_silhouette(rgb) >= 0.5
+        truth = truth_img > 0
+        iou, precision, recall = mask_scores(predicted, truth)
+        scores.append(PhotoScore(entry["photo"], iou, precision, recall, tuple(f["side"] for f in entry["feet"])))
+        if sheet is not None:
+            tiles.append(overlay_tile(rgb, predicted, truth, f"IoU {iou:.2f}"))
+    if sheet is not None and tiles:
+        write_contact_sheet(tiles, sheet)
+    return scores
+
+
+def overlay_tile(rgb: np.ndarray, predicted: np.ndarray, truth: np.ndarray, caption: str) -> np.ndarray:
+    """A small (h, w, 3) uint8 overlay: predicted foot tinted cyan, hand-drawn outline green, caption on top."""
+    tile = rgb.astype(np.float32)
+    tile[predicted] = 0.5 * tile[predicted] + 0.5 * np.array([0, 255, 255], np.float32)
+    tile = tile.astype(np.uint8)
+    contours, _ = cv2.findContours(truth.astype(np.uint8), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
+    scale = THUMB_PX / max(rgb.shape[:2])
+    thick = max(1, int(round(2 / scale)))
+    cv2.drawContours(tile, contours, -1, (0, 255, 0), thick)
+    tile = cv2.resize(tile, (round(rgb.shape[1] * scale), round(rgb.shape[0] * scale)), interpolation=cv2.INTER_AREA)
+    cv2.putText(tile, caption, (4, 16), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (0, 0, 0), 3, cv2.LINE_AA)
+    cv2.putText(tile, caption, (4, 16), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (255, 255, 255), 1, cv2.LINE_AA)
+    return tile
+
+
+def write_contact_sheet(tiles: list[np.ndarray], path: str | os.PathLike, columns: int = 10) -> None:
+    """Tiles (RGB uint8) in a grid of ``columns``, each cell ``THUMB_PX`` square, written atomically as PNG."""
+    columns = min(columns, len(tiles))
+    rows = math.ceil(len(tiles) / columns)
+    sheet = np.full((rows * THUMB_PX, columns * THUMB_PX, 3), 32, np.uint8)
+    for k, tile in enumerate(tiles):
+        r, c = divmod(k, columns)
+        h, w = tile.shape[:2]
+        sheet[r * THUMB_PX : r * THUMB_PX + h, c * THUMB_PX : c * THUMB_PX + w] = tile
+    with atomic_path(path) as tmp:
+        if not cv2.imwrite(str(tmp), sheet[..., ::-1]):  # tmp keeps the .png suffix OpenCV reads
+            raise OSError(f"could not write the contact sheet {path}")
+
+
+def summarise(scores: list[PhotoScore]) -> dict[str, float]:
+    """Mean IoU, precision and recall, and the share of photos with IoU >= ``GOOD_IOU``."""
+    if not scores:
+        raise ValueError("no photos to summarise")
+    return {
+        "photos": len(scores),
+        "feet": sum(len(s.feet) for s in scores),
+        "mean_iou": float(np.mean([s.iou for s in scores])),
+        "mean_precision": float(np.mean([s.precision for s in scores])),
+        "mean_recall": float(np.mean([s.recall for s in scores])),
+        "share_iou_ge_0.8": float(np.mean([s.iou >= GOOD_IOU for s in scores])),
+    }
+
+
+def format_table(name: str, summary: dict[str, float]) -> str:
+    """The summary beside issue 18's targets (the shipped networks have no left/right output yet)."""
+    rows = [
+        ("mean silhouette IoU", f"{summary['mean_iou']:.3f}", ">= 0.85"),
+        ("mean precision", f"{summary['mean_precision']:.3f}", "-"),
+        ("mean recall", f"{summary['mean_recall']:.3f}", "-"),
+        (f"photos with IoU >= {GOOD_IOU}", f"{100 * summary['share_iou_ge_0.8']:.1f} %", "-"),
+        ("side right, per foot", "not predicted by the RGB network", ">= 95 %"),
+    ]
+    width = max(len(r[0]) for r in rows)
+    lines = [f"real photos: {name} ({summary['photos']} photos, {summary['feet']} feet), RGB network, whole photo"]
+    lines += [f"  {what:<{width}}  {ours:<34}  target {target}" for what, ours, target in rows]
+    return "\n".join(lines)
+
+
+def run_eval(folder: str | os.PathLike, sheet: str | os.PathLike | None, json_out: str | None, progress: bool) -> str:
+    """Evaluate a real set; optionally write per-photo scores to ``json_out``; return the printed table."""
+    scores = evaluate_set(folder, sheet, progress)
+    summary = summarise(scores)
+    if json_out:
+        record = {"summary": summary, "photos": [s.__dict__ | {"feet": list(s.feet)} for s in scores]}
+        with atomic_path(json_out) as tmp:
+            tmp.write_text(json.dumps(record, indent=1))
+    return format_table(Path(folder).name, summary)
