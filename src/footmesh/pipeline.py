@@ -87,6 +87,19 @@ def _components(mask: np.ndarray) -> tuple[int, np.ndarray, np.ndarray]:
     return n, labels, stats
 
 
+def whole_photo_cues(kind: str, rgb: np.ndarray | None, depth: np.ndarray | None) -> Cues:
+    """The first pass: cues of the whole photo (H, W, 3) and/or depth (H, W) mm padded to a square, in its pixels."""
+    h, w = (rgb if rgb is not None else depth).shape[:2]
+    side = max(h, w)
+    whole = CropBox((w - side) // 2, (h - side) // 2, side)
+    first = predict_cues(
+        kind,
+        None if rgb is None else whole.cut(rgb),
+        None if depth is None else whole.cut(depth, fill=0.0),
+    )
+    return _cues_in_photo(first, whole, w, h)
+
+
 def locate_foot(
     rgb: np.ndarray | None, depth: np.ndarray | None, K: np.ndarray, kind: str, config: MeasureConfig
 ) -> Located:
@@ -95,14 +108,7 @@ def locate_foot(
     photo's edges (or, with a depth map alone, to those of the height above the floor; K (3, 3) intrinsics)."""
     ref = rgb if rgb is not None else depth
     h, w = ref.shape[:2]
-    side = max(h, w)
-    whole = CropBox((w - side) // 2, (h - side) // 2, side)
-    first = predict_cues(
-        kind,
-        None if rgb is None else whole.cut(rgb),
-        None if depth is None else whole.cut(depth, fill=0.0),
-    )
-    mask = _cues_in_photo(first, whole, w, h).silhouette >= 0.5
+    mask = whole_photo_cues(kind, rgb, depth).silhouette >= 0.5
     n, labels, stats = _components(mask)
     areas = stats[1:, cv2.CC_STAT_AREA] if n > 1 else np.zeros(0)
     if areas.size == 0 or areas.max() < config.min_foot_fraction * h * w:

@@ -54,13 +54,9 @@ def mask_scores(predicted: np.ndarray, truth: np.ndarray) -> tuple[float, float,
 def whole_photo_silhouette(rgb: np.ndarray) -> np.ndarray:
     """(H, W) float32 foot probability of an (H, W, 3) uint8 photo: the RGB network on the photo padded to a
     square, as the pipeline's first pass sees it."""
-    from footmesh.cues.predict import predict_cues
-    from footmesh.pipeline import CropBox, _cues_in_photo
+    from footmesh.pipeline import whole_photo_cues
 
-    h, w = rgb.shape[:2]
-    side = max(h, w)
-    whole = CropBox((w - side) // 2, (h - side) // 2, side)
-    return _cues_in_photo(predict_cues("rgb", whole.cut(rgb)), whole, w, h).silhouette
+    return whole_photo_cues("rgb", rgb, None).silhouette
 
 
 def read_set(folder: str | os.PathLike) -> list[dict]:
