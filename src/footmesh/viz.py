@@ -6,11 +6,29 @@ shading, drawn as a 2D PolyCollection, gives clean pictures of an 8,000-face mes
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 
 import numpy as np
 
 from footmesh.model import skeleton as sk
+
+
+def tile_images(tiles: Sequence[np.ndarray], columns: int, gap: int = 2, background: int = 255) -> np.ndarray:
+    """(h, w, 3) uint8 images in a grid of ``columns``, each in a cell of the largest tile's size, top-left."""
+    if not tiles:
+        raise ValueError("no images to tile")
+    columns = min(columns, len(tiles))
+    rows = math.ceil(len(tiles) / columns)
+    h = max(t.shape[0] for t in tiles)
+    w = max(t.shape[1] for t in tiles)
+    sheet = np.full((rows * (h + gap) - gap, columns * (w + gap) - gap, 3), background, dtype=np.uint8)
+    for i, tile in enumerate(tiles):
+        r, c = divmod(i, columns)
+        y, x = r * (h + gap), c * (w + gap)
+        sheet[y : y + tile.shape[0], x : x + tile.shape[1]] = tile
+    return sheet
+
 
 VIEWS: dict[str, np.ndarray] = {
     # rows: screen-right, screen-up, towards the viewer (foot frame axes)

@@ -10,15 +10,14 @@ evaluation only: nothing here trains or tunes on them.
 from __future__ import annotations
 
 import json
-import math
 import os
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import cv2
 import numpy as np
 
-from footmesh.report import atomic_path
+from footmesh.report import atomic_path, write_json
 
 GOOD_IOU = 0.8
 """A photo counts as segmented well from this IoU on (issue 18's share of photos)."""
@@ -51,14 +50,6 @@ def mask_scores(predicted: np.ndarray, truth: np.ndarray) -> tuple[float, float,
     return iou, precision, recall
 
 
-def whole_photo_silhouette(rgb: np.ndarray) -> np.ndarray:
-    """(H, W) float32 foot probability of an (H, W, 3) uint8 photo: the RGB network on the photo padded to a
-    square, as the pipeline's first pass sees it."""
-    from footmesh.pipeline import whole_photo_cues
-
-    return whole_photo_cues("rgb", rgb, None).silhouette
-
-
 def read_set(folder: str | os.PathLike) -> list[dict]:
     """The entries of a real set's ``labels.json``, with a clear error when it is not one."""
     folder = Path(folder)
@@ -77,29 +68,25 @@ def read_set(folder: str | os.PathLike) -> list[dict]:
     return entries
 
 
-def _read_rgb(path: Path) -> np.ndarray:
-    from footmesh.load import load_image
-
-    rgb, _ = load_image(path)
-    return rgb
-
-
 def evaluate_set(
     folder: str | os.PathLike, sheet: str | os.PathLike | None = None, progress: bool = True
 ) -> list[PhotoScore]:
     """Score every photo of a real set; write a contact sheet of overlays to ``sheet`` (PNG) if given."""
     from tqdm import tqdm
 
+    from footmesh.load import load_image
+    from footmesh.pipeline import whole_photo_cues
+
     folder = Path(folder)
     scores, tiles = [], []
     for entry in tqdm(read_set(folder), desc=f"eval real {folder.name}", disable=not progress):
-        rgb = _read_rgb(folder / entry["photo"])
+        rgb, _ = load_image(folder / entry["photo"])
         truth_img = cv2.imread(str(folder / entry["mask"]), cv2.IMREAD_GRAYSCALE)
         if truth_img is None:
             raise ValueError(f"{folder / entry['mask']} is not a readable mask image")
         if truth_img.shape != rgb.shape[:2]:
             raise ValueError(f"{entry['mask']} is {truth_img.shape[::-1]} px but its photo {rgb.shape[1::-1]}")
-        predicted = whole_photo_silhouette(rgb) >= 0.5
+        predicted = whole_photo_cues("rgb", rgb, None).silhouette >= 0.5
         truth = truth_img > 0
         iou, precision, recall = mask_scores(predicted, truth)
         scores.append(PhotoScore(entry["photo"], iou, precision, recall, tuple(f["side"] for f in entry["feet"])))
@@ -126,17 +113,13 @@ def overlay_tile(rgb: np.ndarray, predicted: np.ndarray, truth: np.ndarray, capt
 
 
 def write_contact_sheet(tiles: list[np.ndarray], path: str | os.PathLike, columns: int = 10) -> None:
-    """Tiles (RGB uint8) in a grid of ``columns``, each cell ``THUMB_PX`` square, written atomically as PNG."""
-    columns = min(columns, len(tiles))
-    rows = math.ceil(len(tiles) / columns)
-    sheet = np.full((rows * THUMB_PX, columns * THUMB_PX, 3), 32, np.uint8)
-    for k, tile in enumerate(tiles):
-        r, c = divmod(k, columns)
-        h, w = tile.shape[:2]
-        sheet[r * THUMB_PX : r * THUMB_PX + h, c * THUMB_PX : c * THUMB_PX + w] = tile
+    """Tiles (RGB uint8) in a grid of ``columns``, written atomically as PNG."""
+    from PIL import Image
+
+    from footmesh.viz import tile_images
+
     with atomic_path(path) as tmp:
-        if not cv2.imwrite(str(tmp), sheet[..., ::-1]):  # tmp keeps the .png suffix OpenCV reads
-            raise OSError(f"could not write the contact sheet {path}")
+        Image.fromarray(tile_images(tiles, columns, gap=0, background=32)).save(tmp, format="PNG")
 
 
 def summarise(scores: list[PhotoScore]) -> dict[str, float]:
@@ -173,7 +156,5 @@ def run_eval(folder: str | os.PathLike, sheet: str | os.PathLike | None, json_ou
     scores = evaluate_set(folder, sheet, progress)
     summary = summarise(scores)
     if json_out:
-        record = {"summary": summary, "photos": [s.__dict__ | {"feet": list(s.feet)} for s in scores]}
-        with atomic_path(json_out) as tmp:
-            tmp.write_text(json.dumps(record, indent=1))
+        write_json(json_out, {"summary": summary, "photos": [asdict(s) for s in scores]})
     return format_table(Path(folder).name, summary)

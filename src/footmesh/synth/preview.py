@@ -60,18 +60,12 @@ def draw_sample(sample: dict[str, np.ndarray], scale: int = 2) -> np.ndarray:
 
 def contact_sheet(samples: Sequence[dict[str, np.ndarray]], columns: int | None = None, scale: int = 1) -> np.ndarray:
     """Tile drawn samples into one (rows*H, cols*W, 3) uint8 image, with a 2-pixel gap."""
+    from footmesh.viz import tile_images
+
     tiles = [draw_sample(s, scale) for s in samples]
     if not tiles:
         raise ValueError("contact sheet: no samples")
-    columns = columns or math.ceil(math.sqrt(len(tiles)))
-    rows = math.ceil(len(tiles) / columns)
-    h, w = tiles[0].shape[:2]
-    gap = 2
-    sheet = np.full((rows * (h + gap) - gap, columns * (w + gap) - gap, 3), 255, dtype=np.uint8)
-    for i, tile in enumerate(tiles):
-        r, c = divmod(i, columns)
-        sheet[r * (h + gap) : r * (h + gap) + h, c * (w + gap) : c * (w + gap) + w] = tile
-    return sheet
+    return tile_images(tiles, columns or math.ceil(math.sqrt(len(tiles))))
 
 
 def write_preview(path: str | os.PathLike, samples: Sequence[dict[str, np.ndarray]], scale: int = 2) -> None:
