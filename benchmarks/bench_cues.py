@@ -42,7 +42,7 @@ def _median_ms(fn, runs: int, warmup: int) -> float:
 def _network(kind: str, thesis: bool):
     """The network to time, its configuration and where its weights come from."""
     from footmesh.config import CuesNetConfig
-    from footmesh.cues.net import CuesNet
+    from footmesh.cues.net import build_network
     from footmesh.cues.weights import load_network, packaged_weights
 
     if not thesis:
@@ -53,7 +53,7 @@ def _network(kind: str, thesis: bool):
             pass
     config = CuesNetConfig.thesis(kind) if thesis else CuesNetConfig(input=kind)
     torch.manual_seed(0)
-    return CuesNet(config).eval(), config, "untrained"
+    return build_network(config).eval(), config, "untrained"
 
 
 def _photo(seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
@@ -114,6 +114,7 @@ def _training_arrays(size: int, data: str | None, n: int = 256):
         joints2d=joints,
         joints_visible=rng.random((n, 18)) < 0.7,
         view_id=np.full(n, -1, np.int16),
+        side=(rng.random(n) < 0.5).astype(np.int8),
         index=np.arange(n),
         size=size,
     )
@@ -137,7 +138,7 @@ def _train_step(task, model: torch.nn.Module, optimizer: torch.optim.Optimizer):
 def training_rows(threads: list[int], steps: int, batch: int, data: str | None) -> list[tuple]:
     """(what, threads, images/s, ms/step) of the default RGB-D network's training step."""
     from footmesh.config import CuesTrainingConfig
-    from footmesh.cues.net import CuesNet
+    from footmesh.cues.net import build_network
     from footmesh.train.cues import CuesTask
 
     config = CuesTrainingConfig()
@@ -148,7 +149,7 @@ def training_rows(threads: list[int], steps: int, batch: int, data: str | None) 
     for n in threads:
         torch.set_num_threads(n)
         torch.manual_seed(0)
-        model = CuesNet(config.net).train()
+        model = build_network(config.net).train()
         optimizer = torch.optim.AdamW(model.parameters(), lr=config.train.lr)
 
         ms = _median_ms(_train_step(task, model, optimizer), steps, 1)

@@ -230,6 +230,16 @@ def _add_synth_command(sub: argparse._SubParsersAction) -> None:
     synth.add_argument(
         "--reference", choices=("none", "a4", "card", "marker", "mixed"), default="mixed", help="reference object"
     )
+    synth.add_argument(
+        "--other-foot", type=float, default=0.0, metavar="P", help="share of samples with the other foot in view"
+    )
+    synth.add_argument(
+        "--first-person",
+        type=float,
+        default=0.0,
+        metavar="P",
+        help="share of views from above and behind the heels, down the legs (as one photographs one's own feet)",
+    )
     synth.add_argument("--workers", type=int, default=1, help="rendering processes (default 1)")
     synth.add_argument("--preview", type=int, metavar="N", help="write a contact sheet of N samples to --out")
     synth.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -239,7 +249,16 @@ def _add_synth_command(sub: argparse._SubParsersAction) -> None:
 def _run_synth(args: argparse.Namespace) -> int:
     from footmesh.synth.scene import SynthConfig
 
-    config = SynthConfig(size=args.size, views=args.views, reference=args.reference)
+    try:
+        config = SynthConfig(
+            size=args.size,
+            views=args.views,
+            reference=args.reference,
+            other_foot_fraction=args.other_foot,
+            first_person_fraction=args.first_person,
+        )
+    except ValueError as exc:
+        raise UserError(str(exc)) from None
     if args.workers < 1:
         raise UserError(f"--workers must be at least 1, got {args.workers}")
     if args.preview is not None:

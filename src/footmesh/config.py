@@ -13,6 +13,7 @@ from typing import Any
 
 INPUT_CHANNELS = {"rgb": 3, "rgbd": 4, "depth": 1}
 """Channels of each input kind of the 2D-cues network."""
+CUES_ENCODERS = ("scratch", "efficientnet_lite0")
 
 
 @dataclass(frozen=True)
@@ -39,6 +40,12 @@ class CuesNetConfig:
     """``soft_argmax``: heatmap softmax -> expected position (+ visibility logits); ``sigmoid``: the thesis' maps."""
     heatmap_sigma_px: float = 1.0
     """SD of the Gaussian joint targets, in output-map pixels."""
+    encoder: str = "scratch"
+    """``scratch``: the stacked encoder-decoders above, trained from nothing (the thesis' design);
+    ``efficientnet_lite0``: an ImageNet-pretrained EfficientNet-Lite0 (from its PyPI package) with an FPN decoder
+    of ``decoder_width`` channels and a left/right head (``stacks``, ``widths`` and ``blocks`` do not apply)."""
+    decoder_width: int = 64
+    """Channels of the pretrained encoder's FPN decoder."""
 
     @property
     def in_channels(self) -> int:
@@ -69,6 +76,10 @@ class CuesNetConfig:
             raise ValueError(f"image_size must be a multiple of 32 and at least 64, got {self.image_size}")
         if self.stacks < 1:
             raise ValueError(f"stacks must be at least 1, got {self.stacks}")
+        if self.encoder not in CUES_ENCODERS:
+            raise ValueError(f"encoder must be one of {CUES_ENCODERS}, got {self.encoder!r}")
+        if self.decoder_width < 8:
+            raise ValueError(f"decoder_width must be at least 8, got {self.decoder_width}")
 
 
 @dataclass(frozen=True)
@@ -118,9 +129,11 @@ class CuesLossConfig:
     joints_px: float = 0.05
     """Weight of the L1 joint distance in input pixels (soft-argmax head)."""
     visibility: float = 0.1
+    side: float = 0.2
+    """Weight of the left/right binary cross-entropy (networks with a side head)."""
 
     def __post_init__(self) -> None:
-        for name in ("silhouette", "heatmap", "joints_px", "visibility"):
+        for name in ("silhouette", "heatmap", "joints_px", "visibility", "side"):
             if getattr(self, name) < 0:
                 raise ValueError(f"loss weight {name} must be at least 0, got {getattr(self, name)}")
 

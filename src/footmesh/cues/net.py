@@ -8,6 +8,9 @@ back to stride 2; the stacks refine each other's predictions (intermediate super
 - ``soft_argmax`` (our default): the silhouette as above; per joint a heatmap whose softmax gives the joint as its
   expected position (sub-pixel, differentiable; Sun et al., "Integral human pose regression"), and a visibility
   logit averaged under that distribution, so each joint comes with the probability that it is visible.
+
+``encoder="efficientnet_lite0"`` replaces the stacks by an ImageNet-pretrained EfficientNet-Lite0 and an FPN
+decoder (``PretrainedCuesNet``), with the same heads and a left/right logit; ``build_network`` picks the class.
 """
 
 from __future__ import annotations
@@ -39,6 +42,8 @@ class CuesOutput:
     heatmap_logits: torch.Tensor
     joints: torch.Tensor
     visibility_logits: torch.Tensor
+    side_logits: torch.Tensor | None = None
+    """(B,) logit that the foot is a right foot; None for networks without a side head."""
 
 
 def conv_bn_relu(cin: int, cout: int, stride: int = 1) -> nn.Sequential:
@@ -119,7 +124,7 @@ class CuesNet(nn.Module):
         self.stacks = nn.ModuleList(
             [EncoderDecoder(config.widths, config.blocks, config.decoder_convs) for _ in range(config.stacks)]
         )
-        maps = 1 + NUM_JOINTS + (NUM_JOINTS if config.head == "soft_argmax" else 0)
+        maps = head_channels(config)
         self.heads = nn.ModuleList([nn.Conv2d(w0, maps, 1) for _ in range(config.stacks)])
         # the next stack sees this stack's features and predictions (Newell et al.'s re-injection)
         self.remap_features = nn.ModuleList([nn.Conv2d(w0, w0, 1) for _ in range(config.stacks - 1)])
@@ -139,17 +144,77 @@ class CuesNet(nn.Module):
         return outputs
 
     def _decode(self, maps: torch.Tensor, fine: torch.Tensor) -> CuesOutput:
-        coarse = F.interpolate(maps[:, :1], size=fine.shape[-2:], mode="bilinear", align_corners=False)
-        silhouette = coarse + self.refine(torch.cat([fine, coarse], dim=1))
-        heat = maps[:, 1 : 1 + NUM_JOINTS]
-        if self.config.head == "soft_argmax":
-            joints, prob = soft_argmax(heat)
-            vis = (maps[:, 1 + NUM_JOINTS :] * prob).flatten(2).sum(-1)
-        else:
-            joints, peak = hard_argmax(heat)
-            vis = peak  # the sigmoid map's peak logit is the thesis' confidence
-        joints = (joints + 0.5) * HEATMAP_STRIDE - 0.5  # heatmap pixels -> input pixels
-        return CuesOutput(silhouette, heat, joints, vis)
+        return decode_maps(self.config, maps, fine, self.refine)
+
+
+def head_channels(config: CuesNetConfig) -> int:
+    """Channels of the stride-4 output maps: silhouette, joint heatmaps (and visibility logits with soft-argmax)."""
+    return 1 + NUM_JOINTS + (NUM_JOINTS if config.head == "soft_argmax" else 0)
+
+
+def decode_maps(
+    config: CuesNetConfig,
+    maps: torch.Tensor,
+    fine: torch.Tensor,
+    refine: nn.Module,
+    side_logits: torch.Tensor | None = None,
+) -> CuesOutput:
+    """Stride-4 ``maps`` and stride-2 ``fine`` features -> silhouette refined at stride 2, joints, visibility."""
+    coarse = F.interpolate(maps[:, :1], size=fine.shape[-2:], mode="bilinear", align_corners=False)
+    silhouette = coarse + refine(torch.cat([fine, coarse], dim=1))
+    heat = maps[:, 1 : 1 + NUM_JOINTS]
+    if config.head == "soft_argmax":
+        joints, prob = soft_argmax(heat)
+        vis = (maps[:, 1 + NUM_JOINTS :] * prob).flatten(2).sum(-1)
+    else:
+        joints, peak = hard_argmax(heat)
+        vis = peak  # the sigmoid map's peak logit is the thesis' confidence
+    joints = (joints + 0.5) * HEATMAP_STRIDE - 0.5  # heatmap pixels -> input pixels
+    return CuesOutput(silhouette, heat, joints, vis, side_logits)
+
+
+class PretrainedCuesNet(nn.Module):
+    """``forward(x (B, C, S, S)) -> [CuesOutput]``: EfficientNet-Lite0 features at strides 2-32, an FPN decoder
+    (Lin et al. 2017: 1x1 laterals added top-down, one 3x3 convolution per level) to stride 4, the cues heads, and
+    a left/right logit from the globally pooled stride-32 features.
+
+    ``pretrained=True`` loads the ImageNet weights from the installed package (training from them); a network read
+    from a weights file is built with ``pretrained=False`` and gets everything from that file.
+    """
+
+    def __init__(self, config: CuesNetConfig, pretrained: bool = False) -> None:
+        super().__init__()
+        from footmesh.cues.efficientnet import PYRAMID_CHANNELS, EfficientNetLite0Features
+
+        self.config = config
+        self.encoder = EfficientNetLite0Features(config.in_channels)
+        if pretrained:
+            self.encoder.load_pretrained()
+        width = config.decoder_width
+        fine = PYRAMID_CHANNELS[0]
+        self.laterals = nn.ModuleList([nn.Conv2d(c, width, 1) for c in PYRAMID_CHANNELS[1:]])
+        self.smooth = nn.ModuleList([conv_bn_relu(width, width) for _ in PYRAMID_CHANNELS[1:-1]])
+        self.out = nn.Sequential(*[conv_bn_relu(width, width) for _ in range(max(config.decoder_convs - 3, 1))])
+        self.head = nn.Conv2d(width, head_channels(config), 1)
+        self.refine = nn.Sequential(conv_bn_relu(fine + 1, fine), nn.Conv2d(fine, 1, 3, 1, 1))
+        self.side = nn.Linear(PYRAMID_CHANNELS[-1], 1)
+
+    def forward(self, x: torch.Tensor) -> list[CuesOutput]:
+        fine, *pyramid = self.encoder(x)
+        y = self.laterals[-1](pyramid[-1])
+        for lateral, smooth, skip in zip(self.laterals[-2::-1], self.smooth[::-1], pyramid[-2::-1], strict=True):
+            y = F.interpolate(y, size=skip.shape[-2:], mode="bilinear", align_corners=False)
+            y = smooth(y + lateral(skip))
+        maps = self.head(self.out(y))
+        side = self.side(pyramid[-1].mean((2, 3)))[:, 0]
+        return [decode_maps(self.config, maps, fine, self.refine, side)]
+
+
+def build_network(config: CuesNetConfig, pretrained: bool = False) -> nn.Module:
+    """The cues network of ``config.encoder`` (``pretrained``: start the pretrained encoder from ImageNet)."""
+    if config.encoder == "efficientnet_lite0":
+        return PretrainedCuesNet(config, pretrained=pretrained)
+    return CuesNet(config)
 
 
 def _grid(h: int, w: int, like: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:

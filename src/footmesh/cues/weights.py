@@ -53,12 +53,12 @@ def load_state(path: str | os.PathLike) -> dict[str, torch.Tensor]:
 
 def load_network(path: str | os.PathLike) -> tuple[nn.Module, CuesNetConfig, dict[str, Any]]:
     """The network of a weights file, in eval mode, its configuration and its info (training, metrics)."""
-    from footmesh.cues.net import CuesNet
+    from footmesh.cues.net import build_network
 
     data = _read(path)
     cfg = data["config"]
     config = CuesNetConfig(**{k: tuple(v) if isinstance(v, list) else v for k, v in cfg.items()})
-    model = CuesNet(config)
+    model = build_network(config)
     model.load_state_dict(load_state(path))
     model.eval()
     return model, config, data.get("info", {})

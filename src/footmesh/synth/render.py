@@ -31,6 +31,7 @@ from footmesh.model.layer import FootModel
 from footmesh.model.skin import SkinColours, load_skin_colours
 from footmesh.synth import kernels, raster, textures
 from footmesh.synth.scene import (
+    OTHER_FOOT_STREAM,
     REFERENCE_KINDS,
     Scene,
     SynthConfig,
@@ -69,8 +70,18 @@ LABEL_BACKGROUND, LABEL_FOOT, LABEL_LEG, LABEL_REFERENCE = 0, 1, 2, 3
 
 
 @dataclass(frozen=True)
+class Mesh:
+    """A triangle mesh in the scene frame (mm) with per-vertex albedo."""
+
+    vertices: np.ndarray  # (V, 3)
+    faces: np.ndarray  # (F, 3)
+    albedo: np.ndarray  # (V, 3)
+
+
+@dataclass(frozen=True)
 class Geometry:
-    """The posed scene's meshes in the scene frame (mm) with per-vertex albedo."""
+    """The posed scene's meshes in the scene frame (mm) with per-vertex albedo; ``other_foot`` and ``other_leg``
+    are the second foot in view (or None), drawn and labelled like the first but without joints."""
 
     foot_vertices: np.ndarray  # (V, 3)
     foot_joints: np.ndarray  # (18, 3)
@@ -80,6 +91,18 @@ class Geometry:
     leg_faces: np.ndarray  # (G, 3)
     leg_albedo: np.ndarray  # (L, 3)
     scene_from_foot: np.ndarray  # (4, 4)
+    other_foot: Mesh | None = None
+    other_leg: Mesh | None = None
+
+    def feet(self) -> list[Mesh]:
+        """The feet in view, the sample's first."""
+        first = Mesh(self.foot_vertices, self.foot_faces, self.foot_albedo)
+        return [first] + ([self.other_foot] if self.other_foot is not None else [])
+
+    def legs(self) -> list[Mesh]:
+        """The legs in view, the sample's first."""
+        first = Mesh(self.leg_vertices, self.leg_faces, self.leg_albedo)
+        return [first] + ([self.other_leg] if self.other_leg is not None else [])
 
 
 class Renderer:
@@ -128,9 +151,30 @@ class Renderer:
         verts = moved + scene_from_foot[:3, 3]
         joints = joints @ rot.T + scene_from_foot[:3, 3]
         albedo = sample_skin(scene.seed, scene.index, scene.skin_tone, self.skin)
-        leg_v, leg_f, leg_a = self._leg(scene, verts, albedo[self.cap].mean(axis=0))
-        geo = Geometry(verts, joints, self._faces[scene.side], albedo, leg_v, leg_f, leg_a, scene_from_foot)
+        leg_skin = albedo[self.cap].mean(axis=0)
+        leg_v, leg_f, leg_a = self._leg(scene, verts, leg_skin)
+        other_foot = other_leg = None
+        if scene.other_foot is not None:
+            other_foot, other_leg = self._other_foot(scene, shape, rest, albedo, leg_skin)
+        geo = Geometry(
+            verts, joints, self._faces[scene.side], albedo, leg_v, leg_f, leg_a, scene_from_foot, other_foot, other_leg
+        )
         return geo, angles
+
+    def _other_foot(
+        self, scene: Scene, shape: torch.Tensor, rest: torch.Tensor | None, albedo: np.ndarray, leg_skin: np.ndarray
+    ) -> tuple[Mesh, Mesh]:
+        """The other foot (same shape and skin, the mirror side, its own pose) standing beside the first; its leg."""
+        side = "left" if scene.side == "right" else "right"
+        angles = sample_angles(scene.seed, scene.index, scene.pose_method, rest, stream=OTHER_FOOT_STREAM)
+        with torch.no_grad():
+            verts = self.model(shape, torch.from_numpy(angles)[None], side=side).vertices[0].numpy()
+        c, s = math.cos(scene.other_foot.yaw), math.sin(scene.other_foot.yaw)
+        verts = verts @ np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]).T
+        dx, dy = scene.other_foot.offset_mm
+        verts = verts + np.array([dx, dy, -verts[:, 2].min()])
+        leg = Mesh(*self._leg(scene, verts, leg_skin))
+        return Mesh(verts, self._faces[side], albedo), leg
 
     def _leg(self, scene: Scene, verts: np.ndarray, skin: np.ndarray) -> tuple[np.ndarray, ...]:
         """A truncated elliptic cone from the ankle cap up to ``leg_top_mm`` above the floor (bare, sock, trouser)."""
@@ -146,7 +190,7 @@ class Renderer:
         e2 = np.cross(axis, e1)
         a = np.abs((cap - centre) @ e1).max() * 1.02
         b = np.abs((cap - centre) @ e2).max() * 1.02
-        length = float(np.clip((scene.leg_top_mm - centre[2]) / max(axis[2], 0.3), 150.0, 700.0))
+        length = float(np.clip((scene.leg_top_mm - centre[2]) / max(axis[2], 0.3), 150.0, 900.0))
         band = min(scene.leg_band_mm, length - 20.0)
         start = -8.0  # below the cap, so the cone overlaps the foot's sides and hides the seam
 
@@ -199,18 +243,18 @@ class Renderer:
         k_ss[:2] *= 2.0
         k_ss[:2, 2] += 1.0
         rot, trans = cam_from_scene[:3, :3], cam_from_scene[:3, 3]
-        verts = np.concatenate([geo.foot_vertices, geo.leg_vertices])
-        faces = np.concatenate([geo.foot_faces, geo.leg_faces + len(geo.foot_vertices)])
-        n_foot_faces = len(geo.foot_faces)
+        feet, legs = geo.feet(), geo.legs()
+        verts, faces, albedo = _merge(feet + legs)
+        n_foot_faces = sum(len(m.faces) for m in feet)
         v_cam = verts @ rot.T + trans
         xy, z = raster.project(v_cam, k_ss)
         frag = raster.rasterize(xy, z, faces, n_ss, n_ss)
 
         light = scene.light_dir
         normals = np.concatenate(
-            [self._vertex_normals(geo.foot_vertices, geo.foot_faces), _vertex_normals(geo.leg_vertices, geo.leg_faces)]
+            [self._vertex_normals(m.vertices, m.faces) for m in feet]
+            + [_vertex_normals(m.vertices, m.faces) for m in legs]
         )
-        albedo = np.concatenate([geo.foot_albedo, geo.leg_albedo])
         lambert = np.clip(normals @ light, 0.0, None)
         sky = 0.8 + 0.2 * normals[:, 2]  # hemispheric ambient: surfaces facing down get a little less light
         shade = (scene.ambient * sky)[:, None] + (scene.diffuse * lambert)[:, None] * scene.light_colour[None]
@@ -328,8 +372,7 @@ class Renderer:
 
     def _floor_shadow(self, geo: Geometry, light: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
         """Cast shadow map of foot and leg on the floor, 0..1: their projection along the light, blurred."""
-        verts = np.concatenate([geo.foot_vertices, geo.leg_vertices])
-        faces = np.concatenate([geo.foot_faces, geo.leg_faces + len(geo.foot_vertices)])
+        verts, faces, _ = _merge(geo.feet() + geo.legs())
         flat = verts[:, :2] - verts[:, 2:3] * (light[:2] / light[2])[None]
         # a closed surface's shadow is that of its faces turned to the light: counter-clockwise on the floor seen
         # from above, which the rasteriser (y-down convention) keeps after re-winding
@@ -339,9 +382,17 @@ class Renderer:
     def _contact_shadow(self, geo: Geometry) -> tuple[np.ndarray, np.ndarray, float]:
         """Ambient occlusion map under the foot, 0..1 (the floor is darkened by 0.6 of it): strong where the sole
         is close to the floor, blurred."""
-        v = geo.foot_vertices
+        v, faces, _ = _merge(geo.feet())
         # the faces seen from below (the sole side) are clockwise seen from above: kept as they are
-        return _coverage_map(v[:, :2], v[:, 2], geo.foot_faces, texel=3.0, blur_mm=10.0, mode="height")
+        return _coverage_map(v[:, :2], v[:, 2], faces, texel=3.0, blur_mm=10.0, mode="height")
+
+
+def _merge(meshes: list[Mesh]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """One vertex, face and albedo array of several meshes, in their order (face ids follow that order)."""
+    offsets = np.cumsum([0] + [len(m.vertices) for m in meshes[:-1]])
+    verts = np.concatenate([m.vertices for m in meshes])
+    faces = np.concatenate([m.faces + o for m, o in zip(meshes, offsets, strict=True)])
+    return verts, faces, np.concatenate([m.albedo for m in meshes])
 
 
 def _coverage_map(

@@ -23,7 +23,15 @@ Sampling (all uniform unless stated; see ``SynthConfig`` for the ranges):
   ``max_azimuth_deg`` of the toes (never from behind the heel, thesis 3.5.3), elevation 20-80 deg, roll jitter;
   or one of the 22 fixed viewpoints of thesis chapter 4 (``thesis_view``);
 - reference object (optional): A4 sheet (sometimes under the foot), ID-1 card or printed ArUco marker, lying on
-  the floor on the camera's side of the foot.
+  the floor on the camera's side of the foot;
+- the other foot (probability ``other_foot_fraction``): the mirror side with the same shape, its own pose, beside
+  the first (where a standing person's other foot is: 110-230 mm to its side, up to 90 mm ahead or behind,
+  turned up to 20 deg), with the same leg covering;
+- first-person views (probability ``first_person_fraction``): the camera above and behind the heels, looking
+  down the legs as one photographs one's own feet (azimuth 180 +- 40 deg, elevation 50-88 deg, 450-900 mm), so
+  the shins enter from the image's edge and may hide the heel.
+
+The last two are drawn after everything else, so datasets made before them keep every other value.
 """
 
 from __future__ import annotations
@@ -68,6 +76,10 @@ class SynthConfig:
     reference_probs: dict[str, float] = field(
         default_factory=lambda: {"none": 0.25, "a4": 0.35, "card": 0.2, "marker": 0.2}
     )
+    other_foot_fraction: float = 0.0
+    """Share of samples showing the other foot and leg beside the first (both labelled foot; joints of the first)."""
+    first_person_fraction: float = 0.0
+    """Share of random views taken from above and behind the heels, down the legs (they replace the view drawn)."""
     frame_reference: bool = False
     """True: random views frame the foot and the reference object together, like a whole photo taken as the photo
     guide asks (a reference half out of frame cannot give the scale; ``eval measure``, the bundled examples).
@@ -82,6 +94,9 @@ class SynthConfig:
             raise ValueError(
                 f"azimuths must satisfy 0 <= min <= max <= 180 deg, got {self.min_azimuth_deg}, {self.max_azimuth_deg}"
             )
+        for name in ("other_foot_fraction", "first_person_fraction", "ik_fraction", "lifted_fraction"):
+            if not 0.0 <= getattr(self, name) <= 1.0:
+                raise ValueError(f"{name} must be in 0..1, got {getattr(self, name)}")
         if self.reference not in REFERENCE_CHOICES:
             raise ValueError(f"reference must be one of {REFERENCE_CHOICES}, got {self.reference!r}")
 
@@ -115,6 +130,20 @@ class Reference:
 
 
 @dataclass(frozen=True)
+class OtherFoot:
+    """The other foot beside the sample's foot: its offset (x ahead, y to the side; scene frame, mm) and yaw (rad).
+
+    Its pose comes from ``sample_angles(..., stream=OTHER_FOOT_STREAM)``."""
+
+    offset_mm: tuple[float, float]
+    yaw: float
+
+
+OTHER_FOOT_STREAM = 3
+"""Random stream of the other foot's joint angles (``default_rng([seed, index, 3])``)."""
+
+
+@dataclass(frozen=True)
 class Scene:
     """Everything drawn for one sample (the geometry follows from it and the foot model)."""
 
@@ -145,6 +174,8 @@ class Scene:
     view_id: int  # 0..21 for thesis views, -1 for random
     reference: Reference | None
     noise_seed: int
+    other_foot: OtherFoot | None = None
+    first_person: bool = False
 
 
 def guided_view_config(**fields) -> SynthConfig:
@@ -206,6 +237,20 @@ def sample_scene(seed: int, index: int, config: SynthConfig, num_components: int
     if kind != "none":
         reference = _sample_reference(rng, kind, azimuth)
     noise_seed = int(rng.integers(2**62))
+    # drawn last, so that datasets made before these fields existed keep all their other values
+    other_foot = None
+    if rng.random() < config.other_foot_fraction:
+        # a right foot stands on the left foot's -y side (the foot frame's y points to the left)
+        towards = -1.0 if side == "left" else 1.0
+        offset = (float(rng.normal(0, 40.0)), towards * float(rng.uniform(110.0, 230.0)))
+        other_foot = OtherFoot((float(np.clip(offset[0], -90, 90)), offset[1]), float(rng.uniform(-0.35, 0.35)))
+    first_person = config.views == "random" and rng.random() < config.first_person_fraction
+    if first_person:
+        azimuth = math.pi + math.radians(rng.uniform(-40, 40))
+        elevation = math.radians(rng.uniform(50, 88))
+        distance = float(rng.uniform(450, 900))
+        jitter = jitter + np.array([rng.uniform(-60, 40), 0.0, 0.0])
+        leg_top = float(rng.uniform(600, 900))  # shin and thigh: the legs run out of the picture
     return Scene(
         seed=seed,
         index=index,
@@ -234,6 +279,8 @@ def sample_scene(seed: int, index: int, config: SynthConfig, num_components: int
         view_id=view_id,
         reference=reference,
         noise_seed=noise_seed,
+        other_foot=other_foot,
+        first_person=first_person,
     )
 
 
@@ -337,11 +384,11 @@ def intrinsics(size: int, fov_deg: float) -> np.ndarray:
     return np.array([[f, 0.0, c], [0.0, f, c], [0.0, 0.0, 1.0]])
 
 
-def sample_angles(seed: int, index: int, method: str, rest_joints) -> np.ndarray:
-    """(22,) float64 joint angles of sample (seed, index), from its own stream ``default_rng([seed, index, 1])``."""
+def sample_angles(seed: int, index: int, method: str, rest_joints, stream: int = 1) -> np.ndarray:
+    """(22,) float64 joint angles of sample (seed, index), from the stream ``default_rng([seed, index, stream])``."""
     from footmesh.model.ik import sample_poses
 
-    rng = np.random.default_rng([seed, index, 1])
+    rng = np.random.default_rng([seed, index, stream])
     return sample_poses(rest_joints, rng, 1, method=method)[0].numpy()
 
 

@@ -14,7 +14,7 @@ from torch import nn
 
 from footmesh.config import CuesLossConfig, CuesNetConfig, CuesTrainingConfig
 from footmesh.cues.inputs import network_input
-from footmesh.cues.net import HEATMAP_STRIDE, SILHOUETTE_STRIDE, CuesNet, CuesOutput, gaussian_targets
+from footmesh.cues.net import HEATMAP_STRIDE, SILHOUETTE_STRIDE, CuesOutput, build_network, gaussian_targets
 from footmesh.cues.weights import save_weights
 from footmesh.train.data import Augment, Batch, CuesArrays, augment_batch, load_arrays, make_batch
 from footmesh.train.loop import TrainResult, run_training
@@ -58,6 +58,10 @@ def cues_loss(
             with torch.no_grad():
                 dist_px = ((out.joints - batch.joints).norm(dim=-1) * inside).sum() / n_inside
             stack_terms = {"sil": sil, "heat": heat, "joint_px": dist_px}
+        if out.side_logits is not None and batch.side is not None:
+            side = F.binary_cross_entropy_with_logits(out.side_logits, batch.side)
+            loss = loss + weights.side * side
+            stack_terms["side"] = side
         total = total + loss
         if k == len(outputs) - 1:
             terms = {name: float(v.detach()) for name, v in stack_terms.items()}
@@ -92,8 +96,10 @@ class CuesTask:
 
 @torch.no_grad()
 def evaluate_arrays(model: nn.Module, arrays: CuesArrays, net: CuesNetConfig, batch_size: int = 64) -> dict:
-    """Silhouette error (% of pixels, at the network's side) and mean joint error (px of a 224 image)."""
+    """Silhouette error (% of pixels, at the network's side), mean joint error (px of a 224 image) and, for networks
+    with a side head, the share of samples whose side is wrong (%)."""
     wrong, pixels, dist, count = 0.0, 0, 0.0, 0.0
+    side_wrong, side_count = 0, 0
     for start in range(0, len(arrays), batch_size):
         rows = np.arange(start, min(start + batch_size, len(arrays)))
         batch = make_batch(arrays, rows)
@@ -104,7 +110,13 @@ def evaluate_arrays(model: nn.Module, arrays: CuesArrays, net: CuesNetConfig, ba
         d = (out.joints - batch.joints).norm(dim=-1) * batch.inside
         dist += float(d.sum()) * EVAL_SIZE / arrays.size
         count += float(batch.inside.sum())
-    return {"silhouette_wrong_pct": 100 * wrong / max(pixels, 1), "joint_px224": dist / max(count, 1)}
+        if out.side_logits is not None:
+            side_wrong += int(((out.side_logits > 0).float() != batch.side).sum())
+            side_count += len(rows)
+    metrics = {"silhouette_wrong_pct": 100 * wrong / max(pixels, 1), "joint_px224": dist / max(count, 1)}
+    if side_count:
+        metrics["side_wrong_pct"] = 100 * side_wrong / side_count
+    return metrics
 
 
 def copy_matching(model: nn.Module, state: dict[str, torch.Tensor]) -> int:
@@ -145,8 +157,9 @@ def train_cues(
     train = arrays.subset(np.arange(len(arrays) - n_val))
     val = arrays.subset(np.arange(len(arrays) - n_val, len(arrays)))
     torch.manual_seed(config.train.seed)
-    model = CuesNet(net_cfg)
     out = Path(out)
+    # the pretrained encoder starts from ImageNet; a resumed run then takes everything from its checkpoint
+    model = build_network(net_cfg, pretrained=True)
     if config.train.init_from and not (out / "checkpoint.pt").is_file():
         from footmesh.cues.weights import load_state
 

@@ -20,7 +20,9 @@ import torch.nn.functional as F  # noqa: N812
 
 from footmesh.report import atomic_path
 
-CACHE_KEYS = ("rgb", "depth", "silhouette", "joints2d", "joints_visible", "view_id", "index")
+SAMPLE_KEYS = ("rgb", "depth", "silhouette", "joints2d", "joints_visible", "view_id", "side")
+"""What the cache keeps of each synthetic sample (and its ``index``)."""
+CACHE_KEYS = ("rgb", "depth", "silhouette", "joints2d", "joints_visible", "view_id", "side", "index")
 
 
 def resize_joints(joints: np.ndarray, src: int, dst: int) -> np.ndarray:
@@ -51,7 +53,7 @@ def resize_sample(sample: dict[str, np.ndarray], size: int) -> dict[str, np.ndar
 class CuesArrays:
     """Samples of one folder at side ``size``: ``rgb`` (N, S, S, 3) uint8, ``depth`` (N, S, S) uint16 mm,
     ``silhouette`` (N, S, S) uint8 coverage x 255, ``joints2d`` (N, 18, 2) px, ``joints_visible`` (N, 18) bool,
-    ``view_id`` (N,), ``index`` (N,)."""
+    ``view_id`` (N,), ``side`` (N,) int8 (1 = right foot), ``index`` (N,)."""
 
     rgb: np.ndarray
     depth: np.ndarray
@@ -59,6 +61,7 @@ class CuesArrays:
     joints2d: np.ndarray
     joints_visible: np.ndarray
     view_id: np.ndarray
+    side: np.ndarray
     index: np.ndarray
     size: int
 
@@ -75,9 +78,9 @@ def load_arrays(folder: str | os.PathLike, size: int, progress: bool = True) -> 
 
     folder = Path(folder)
     cache = folder / f"cues-cache-{size}"
-    dataset = SynthDataset(folder, keys=["rgb", "depth", "silhouette", "joints2d", "joints_visible", "view_id"])
+    dataset = SynthDataset(folder, keys=list(SAMPLE_KEYS))
     chunks = [[f.name, f.stat().st_size, f.stat().st_mtime_ns] for f in dataset.files]
-    stamp = {"samples": len(dataset), "size": size, "chunks": chunks}
+    stamp = {"samples": len(dataset), "size": size, "chunks": chunks, "keys": list(CACHE_KEYS)}
     if not (cache / "stamp.json").is_file() or json.loads((cache / "stamp.json").read_text()) != stamp:
         _build_cache(dataset, cache, size, stamp, progress)
     arrays = {k: np.load(cache / f"{k}.npy", mmap_mode="r") for k in CACHE_KEYS}
@@ -97,11 +100,12 @@ def _build_cache(dataset, cache: Path, size: int, stamp: dict, progress: bool) -
         "joints2d": np.zeros((n, 18, 2), np.float32),
         "joints_visible": np.zeros((n, 18), bool),
         "view_id": np.zeros(n, np.int16),
+        "side": np.zeros(n, np.int8),
         "index": np.asarray(dataset.indices, np.int64),
     }
     for i in tqdm(range(n), desc=f"caching {dataset.root.name} at {size} px", disable=not progress, unit="sample"):
         s = resize_sample(dataset[i], size)
-        for k in ("rgb", "depth", "silhouette", "joints2d", "joints_visible", "view_id"):
+        for k in SAMPLE_KEYS:
             out[k][i] = s[k]
     for k, v in out.items():
         with atomic_path(cache / f"{k}.npy") as tmp, open(tmp, "wb") as f:
@@ -114,7 +118,8 @@ def _build_cache(dataset, cache: Path, size: int, stamp: dict, progress: bool) -
 class Batch:
     """Float tensors of one batch: ``rgb`` (B, 3, S, S) in [0, 1], ``depth`` (B, 1, S, S) mm (0 = missing),
     ``silhouette`` (B, 1, S, S) in [0, 1], ``joints`` (B, 18, 2) px, ``visible`` (B, 18), ``inside`` (B, 18)
-    (the joint lies inside the image, so it can be supervised)."""
+    (the joint lies inside the image, so it can be supervised), ``side`` (B,) 1 for a right foot (as seen: a
+    mirrored image shows the other side)."""
 
     rgb: torch.Tensor
     depth: torch.Tensor
@@ -122,6 +127,8 @@ class Batch:
     joints: torch.Tensor
     visible: torch.Tensor
     inside: torch.Tensor
+    side: torch.Tensor | None = None
+    """None: the samples carry no side label (the side head is then not trained on them)."""
 
 
 def make_batch(arrays: CuesArrays, rows: np.ndarray) -> Batch:
@@ -132,7 +139,8 @@ def make_batch(arrays: CuesArrays, rows: np.ndarray) -> Batch:
     sil = torch.from_numpy(np.ascontiguousarray(arrays.silhouette[rows])).float()[:, None] / 255
     joints = torch.from_numpy(np.ascontiguousarray(arrays.joints2d[rows]))
     visible = torch.from_numpy(np.ascontiguousarray(arrays.joints_visible[rows])).float()
-    return Batch(rgb, depth, sil, joints, visible, inside_image(joints, arrays.size))
+    side = torch.from_numpy(arrays.side[rows].astype(np.float32))
+    return Batch(rgb, depth, sil, joints, visible, inside_image(joints, arrays.size), side)
 
 
 def inside_image(joints: torch.Tensor, size: int, margin: float = 0.0) -> torch.Tensor:
@@ -189,7 +197,10 @@ def augment_batch(batch: Batch, aug: Augment, generator: torch.Generator) -> Bat
 
     rgb = _photometric(rgb, aug, generator, uniform)
     depth = _depth_noise(depth, aug, generator, uniform)
-    return Batch(rgb, depth, sil, joints, batch.visible, inside_image(joints, size) * batch.inside)
+    side = batch.side
+    if side is not None:
+        side = torch.where(flip < 0, 1.0 - side, side)  # a mirror image shows a foot of the other side
+    return Batch(rgb, depth, sil, joints, batch.visible, inside_image(joints, size) * batch.inside, side)
 
 
 def _photometric(rgb: torch.Tensor, aug: Augment, generator: torch.Generator, uniform) -> torch.Tensor:
