@@ -429,6 +429,7 @@ def _add_eval_commands(sub: argparse._SubParsersAction) -> None:
     )
     real.add_argument("--sheet", help="write a contact sheet of overlays to this PNG")
     real.add_argument("--json", help="also write per-photo scores to this JSON file")
+    real.add_argument("--weights", help="an RGB 2D-cues weights file to evaluate (default: the shipped one)")
     real.add_argument("--no-progress", action="store_true", help="no progress bar")
     real.set_defaults(func=_run_eval_real)
     recon = ev_sub.add_parser("recon", help="Tables 4.4, 4.5 (and 4.6 per viewpoint) of the reconstruction networks")
@@ -470,7 +471,7 @@ def _run_eval_real(args: argparse.Namespace) -> int:
     from footmesh.eval.real import run_eval
 
     try:
-        print(run_eval(args.real_set, args.sheet, args.json, progress=not args.no_progress))
+        print(run_eval(args.real_set, args.sheet, args.json, progress=not args.no_progress, weights=args.weights))
     except ValueError as exc:
         raise UserError(str(exc)) from None
     return 0

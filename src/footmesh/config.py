@@ -269,6 +269,10 @@ class MeasureConfig:
     random; ratios 2.0-24) and 19 of 20 guided depth photos (the wrong one at 1.4, the 17 at 3 or more right).
     Not RGB: its decoder picked the true side on 14 of 20."""
     decoder_side_ratio: float = 3.0
+    cues_side_confidence: float = 0.95
+    """With ``--side auto``, the side is the 2D-cues network's (networks with a left/right head) when its probability
+    of a right foot is at least this or at most 1 minus this; only that side is then fitted. Below it, the decoder
+    or the fit of both sides decides as before."""
     min_depth_contour_followed: float = 0.85
     """With a depth map, refuse the photo when less of the foot's outline than this lies within 2 px of the fitted
     model's (``FootFit.quality["contour_within_2px"]``). Guided photos, seeds 4242 (60) and 777 (20), RGB-D and

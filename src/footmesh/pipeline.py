@@ -79,7 +79,7 @@ def _cues_in_photo(cues: Cues, crop: CropBox, width: int, height: int) -> Cues:
     if x1 > x0 and y1 > y0:
         sil[y0:y1, x0:x1] = cues.silhouette[y0 - crop.y0 : y1 - crop.y0, x0 - crop.x0 : x1 - crop.x0]
     joints = cues.joints2d_px + np.array([crop.x0, crop.y0], np.float32)
-    return Cues(sil, joints.astype(np.float32), cues.joint_confidence, cues.input)
+    return replace(cues, silhouette=sil, joints2d_px=joints.astype(np.float32))
 
 
 def _components(mask: np.ndarray) -> tuple[int, np.ndarray, np.ndarray]:
@@ -87,8 +87,19 @@ def _components(mask: np.ndarray) -> tuple[int, np.ndarray, np.ndarray]:
     return n, labels, stats
 
 
-def whole_photo_cues(kind: str, rgb: np.ndarray | None, depth: np.ndarray | None) -> Cues:
-    """The first pass: cues of the whole photo (H, W, 3) and/or depth (H, W) mm padded to a square, in its pixels."""
+def crop_around(x: int, y: int, width: int, height: int, fill: float) -> CropBox:
+    """The square crop centred on a box (px) whose longer side is ``fill`` of the crop's, as the networks were
+    trained (``MeasureConfig.crop_fill``)."""
+    side = int(math.ceil(max(width, height) / fill))
+    cx, cy = x + width / 2, y + height / 2
+    return CropBox(int(round(cx - side / 2)), int(round(cy - side / 2)), side)
+
+
+def whole_photo_cues(
+    kind: str, rgb: np.ndarray | None, depth: np.ndarray | None, weights: str | os.PathLike | None = None
+) -> Cues:
+    """The first pass: cues of the whole photo (H, W, 3) and/or depth (H, W) mm padded to a square, in its pixels
+    (the shipped ``kind`` network, or the one in ``weights``)."""
     h, w = (rgb if rgb is not None else depth).shape[:2]
     side = max(h, w)
     whole = CropBox((w - side) // 2, (h - side) // 2, side)
@@ -96,6 +107,7 @@ def whole_photo_cues(kind: str, rgb: np.ndarray | None, depth: np.ndarray | None
         kind,
         None if rgb is None else whole.cut(rgb),
         None if depth is None else whole.cut(depth, fill=0.0),
+        weights=weights,
     )
     return _cues_in_photo(first, whole, w, h)
 
@@ -120,10 +132,7 @@ def locate_foot(
     big = 1 + order[0]
     if len(order) > 1 and areas[order[1]] >= config.second_foot_ratio * areas[order[0]]:
         raise PipelineError("two feet (or two foot-like regions) found; photograph one foot at a time")
-    x, y, bw, bh = stats[big, :4]
-    crop_side = int(math.ceil(max(bw, bh) / config.crop_fill))
-    cx, cy = x + bw / 2, y + bh / 2
-    crop = CropBox(int(round(cx - crop_side / 2)), int(round(cy - crop_side / 2)), crop_side)
+    crop = crop_around(*stats[big, :4], config.crop_fill)
     crop_rgb = None if rgb is None else crop.cut(rgb)
     crop_depth = None if depth is None else crop.cut(depth, fill=0.0)
     second = predict_cues(kind, crop_rgb, crop_depth)
@@ -140,11 +149,7 @@ def locate_foot(
         raise PipelineError("no foot found in the photo (the foot region vanished on a closer look)")
     keep = 1 + np.argmax(stats[1:, cv2.CC_STAT_AREA])
     mask = labels == keep
-    return Located(crop, Cues(np.where(mask, cues.silhouette, 0.0).astype(np.float32), *_rest(cues)), mask)
-
-
-def _rest(cues: Cues) -> tuple[np.ndarray, np.ndarray, str]:
-    return cues.joints2d_px, cues.joint_confidence, cues.input
+    return Located(crop, replace(cues, silhouette=np.where(mask, cues.silhouette, 0.0).astype(np.float32)), mask)
 
 
 def decoder_mesh(
@@ -281,6 +286,9 @@ def run_pipeline(photo: Photo, side: str, config: MeasureConfig, input: str = "a
     t = time.perf_counter()
     init = None
     side_source = "given" if side != "auto" else "fit"
+    right = located.cues.right_probability
+    if side == "auto" and right is not None and max(right, 1.0 - right) >= config.cues_side_confidence:
+        side, side_source = ("right" if right >= 0.5 else "left"), "cues"
     start, tell_side = kind in config.decoder_start_inputs, side == "auto" and kind in config.decoder_side_inputs
     mesh = None
     if start or tell_side:

@@ -14,13 +14,16 @@ class Cues:
     ``silhouette``: (H, W) float32 probability that the pixel shows the foot (not the leg);
     ``joints2d_px``: (18, 2) float32 joint positions (DESIGN.md joint order), may lie outside the image;
     ``joint_confidence``: (18,) float32 in [0, 1], the predicted probability that the joint is visible;
-    ``input``: which network produced them (``"rgb"``, ``"rgbd"``, ``"depth"``).
+    ``input``: which network produced them (``"rgb"``, ``"rgbd"``, ``"depth"``);
+    ``right_probability``: the network's probability that the foot it was shown is a right foot (None for networks
+    without a left/right head).
     """
 
     silhouette: np.ndarray
     joints2d_px: np.ndarray
     joint_confidence: np.ndarray
     input: str
+    right_probability: float | None = None
 
     def __post_init__(self) -> None:
         if self.silhouette.ndim != 2:

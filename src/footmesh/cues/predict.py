@@ -41,11 +41,12 @@ def predict_batch(
     rgb: np.ndarray | None,
     depth_mm: np.ndarray | None,
     out_size: tuple[int, int] | None = None,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]:
     """Cues of a batch already at the network's side: ``rgb`` (B, S, S, 3) uint8, ``depth_mm`` (B, S, S).
 
     Returns the silhouette probability (B, H, W) at ``out_size`` = (W, H) (default S x S), the joints (B, 18, 2)
-    in those pixels, and each joint's confidence (B, 18).
+    in those pixels, each joint's confidence (B, 18), and the probability of a right foot (B,) (None for networks
+    without a side head).
     """
     t_rgb = None if rgb is None else torch.from_numpy(np.ascontiguousarray(rgb)).permute(0, 3, 1, 2).float() / 255
     t_depth = None if depth_mm is None else torch.from_numpy(np.asarray(depth_mm, np.float32))[:, None]
@@ -55,7 +56,9 @@ def predict_batch(
     width, height = out_size or (size, size)
     sil = torch.sigmoid(F.interpolate(out.silhouette_logits, size=(height, width), mode="bilinear"))[:, 0]
     joints = joints_to_image(out.joints.numpy(), size, width, height)
-    return sil.numpy().astype(np.float32), joints, torch.sigmoid(out.visibility_logits).numpy().astype(np.float32)
+    conf = torch.sigmoid(out.visibility_logits).numpy().astype(np.float32)
+    right = None if out.side_logits is None else torch.sigmoid(out.side_logits).numpy().astype(np.float64)
+    return sil.numpy().astype(np.float32), joints, conf, right
 
 
 def predict_cues(
@@ -79,19 +82,26 @@ def predict_cues(
     rgb_s, depth_s = resize_inputs(
         rgb if input_kind != "depth" else None, depth_mm if input_kind != "rgb" else None, config.image_size
     )
-    sil, joints, conf = predict_batch(
+    sil, joints, conf, right = predict_batch(
         model,
         config,
         None if rgb_s is None else rgb_s[None],
         None if depth_s is None else depth_s[None],
         out_size=(width, height),
     )
-    return Cues(silhouette=sil[0], joints2d_px=joints[0], joint_confidence=conf[0], input=input_kind)
+    return Cues(
+        silhouette=sil[0],
+        joints2d_px=joints[0],
+        joint_confidence=conf[0],
+        input=input_kind,
+        right_probability=None if right is None else float(right[0]),
+    )
 
 
 def average_cues(cues: list[Cues]) -> Cues:
     """One ``Cues`` from several networks' cues of the same image: silhouette probabilities averaged, each joint
-    averaged with its confidences as weights, confidences averaged; ``input`` names them all ("rgbd+depth")."""
+    averaged with its confidences as weights, confidences and side probabilities averaged; ``input`` names them
+    all ("rgbd+depth")."""
     if not cues:
         raise ValueError("average_cues needs at least one Cues")
     shapes = {c.silhouette.shape for c in cues}
@@ -101,9 +111,11 @@ def average_cues(cues: list[Cues]) -> Cues:
     conf = np.stack([c.joint_confidence for c in cues]).astype(np.float64)  # (N, 18)
     weights = conf + 1e-3  # joints no network is sure of: the plain mean
     joints = (weights[..., None] * np.stack([c.joints2d_px for c in cues])).sum(0) / weights.sum(0)[:, None]
+    sides = [c.right_probability for c in cues if c.right_probability is not None]
     return Cues(
         silhouette=silhouette,
         joints2d_px=joints.astype(np.float32),
         joint_confidence=conf.mean(0).astype(np.float32),
         input="+".join(c.input for c in cues),
+        right_probability=float(np.mean(sides)) if sides else None,
     )

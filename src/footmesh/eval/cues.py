@@ -77,7 +77,7 @@ def evaluate(
             rgbs.append(r)
             depths.append(d)
         t0 = time.perf_counter()
-        sil, joints, _ = predict_batch(
+        sil, joints, _, _ = predict_batch(
             model,
             config,
             np.stack(rgbs) if input_kind != "depth" else None,
