@@ -4,8 +4,11 @@ Inference: batch 1, median of ``--runs`` calls after warm-up, at 2 and 1 torch t
 of each input kind (the shipped weights when present, otherwise an untrained network of the same configuration:
 the time does not depend on the weights' values) and for the thesis' network; "network" times the forward pass
 of an input already at the network's side, "predict_cues" the whole call on a 224 x 224 photo (resize, forward,
-silhouette and joints mapped back). Training: images per second of the default network at batch 32, counting
-batch assembly, augmentation, forward, backward and the optimiser step (``footmesh.train.cues.CuesTask``).
+silhouette and joints mapped back). "Both passes" times the cues of one whole photo as the pipeline gets them
+(``pipeline.whole_photo_cues`` on a 1600 x 1200 photo padded to a square, then ``predict_cues`` on a 700 px crop)
+beside issue 18's 150 ms goal, with the shipped networks. Training: images per second of the default network at
+batch 32, counting batch assembly, augmentation, forward, backward and the optimiser step
+(``footmesh.train.cues.CuesTask``).
 
 Run: ``python benchmarks/bench_cues.py [--quick] [--data DIR]`` (or ``python -m benchmarks bench_cues``).
 """
@@ -24,6 +27,10 @@ import torch
 
 GOAL_MS = 60.0
 """Inference time per image at batch 1 (issue 5)."""
+PHOTO_GOAL_MS = 150.0
+"""Both passes of the cues of one photo (issue 18)."""
+WHOLE_PHOTO = (1200, 1600)
+CROP_SIDE = 700
 INPUTS = ("rgbd", "depth", "rgb")
 PHOTO_SIDE = 224
 
@@ -81,6 +88,8 @@ def inference_rows(threads: list[int], runs: int, warmup: int, thesis: bool) -> 
             300 + 400 * torch.rand(1, 1, s, s) if kind != "rgb" else None,
         )
         stacks = f"{config.stacks} stack{'s' if config.stacks > 1 else ''}"
+        if config.encoder != "scratch":
+            stacks = config.encoder
         name = f"{'thesis' if is_thesis else 'default'} {kind} ({stacks}, {s} px)"
 
         def predict(model=model, config=config, kind=kind) -> None:
@@ -135,6 +144,33 @@ def _train_step(task, model: torch.nn.Module, optimizer: torch.optim.Optimizer):
     return step
 
 
+def photo_rows(threads: list[int], runs: int, warmup: int) -> list[tuple]:
+    """(input kind, threads, both passes ms) with the shipped networks, on a random whole photo."""
+    from footmesh.cues.predict import predict_cues
+    from footmesh.pipeline import whole_photo_cues
+
+    rng = np.random.default_rng(1)
+    rgb = rng.integers(0, 256, (*WHOLE_PHOTO, 3), dtype=np.uint8)
+    depth = rng.uniform(300, 700, WHOLE_PHOTO).astype(np.float32)
+    rows = []
+    for kind in INPUTS:
+        photo_rgb = None if kind == "depth" else rgb
+        photo_depth = None if kind == "rgb" else depth
+
+        def both(kind=kind, photo_rgb=photo_rgb, photo_depth=photo_depth) -> None:
+            whole_photo_cues(kind, photo_rgb, photo_depth)
+            crop = (slice(100, 100 + CROP_SIDE), slice(300, 300 + CROP_SIDE))
+            predict_cues(
+                kind, None if photo_rgb is None else photo_rgb[crop], None if photo_depth is None else photo_depth[crop]
+            )
+
+        for n in threads:
+            torch.set_num_threads(n)
+            with torch.no_grad():
+                rows.append((kind, n, _median_ms(both, runs, warmup)))
+    return rows
+
+
 def training_rows(threads: list[int], steps: int, batch: int, data: str | None) -> list[tuple]:
     """(what, threads, images/s, ms/step) of the default RGB-D network's training step."""
     from footmesh.config import CuesTrainingConfig
@@ -180,6 +216,13 @@ def main(argv: list[str] | None = None) -> int:
     for name, source, n, net_ms, call_ms in rows:
         mark = "" if call_ms <= GOAL_MS else "  over the goal"
         print(f"{name:<34} {source:<10} {n:>7} {net_ms:>11.1f} {call_ms:>16.1f} {GOAL_MS:>8.0f}{mark}")
+
+    print(f"\ncues of one {WHOLE_PHOTO[1]} x {WHOLE_PHOTO[0]} photo, both passes (whole photo + {CROP_SIDE} px crop), "
+          "shipped networks")  # fmt: skip
+    print(f"{'input':<8} {'threads':>7} {'both passes ms':>15} {'goal ms':>8}")
+    for kind, n, ms in photo_rows(threads, runs, warmup):
+        mark = "" if ms <= PHOTO_GOAL_MS else "  over the goal"
+        print(f"{kind:<8} {n:>7} {ms:>15.1f} {PHOTO_GOAL_MS:>8.0f}{mark}")
 
     rows = training_rows(threads, train_steps, batch, args.data)
     source = args.data or "random arrays"
