@@ -96,10 +96,14 @@ def crop_around(x: int, y: int, width: int, height: int, fill: float) -> CropBox
 
 
 def whole_photo_cues(
-    kind: str, rgb: np.ndarray | None, depth: np.ndarray | None, weights: str | os.PathLike | None = None
+    kind: str,
+    rgb: np.ndarray | None,
+    depth: np.ndarray | None,
+    weights: str | os.PathLike | None = None,
+    image_size: int | None = None,
 ) -> Cues:
     """The first pass: cues of the whole photo (H, W, 3) and/or depth (H, W) mm padded to a square, in its pixels
-    (the shipped ``kind`` network, or the one in ``weights``)."""
+    (the shipped ``kind`` network, or the one in ``weights``, at ``image_size``: see ``predict_cues``)."""
     h, w = (rgb if rgb is not None else depth).shape[:2]
     side = max(h, w)
     whole = CropBox((w - side) // 2, (h - side) // 2, side)
@@ -108,6 +112,7 @@ def whole_photo_cues(
         None if rgb is None else whole.cut(rgb),
         None if depth is None else whole.cut(depth, fill=0.0),
         weights=weights,
+        image_size=image_size,
     )
     return _cues_in_photo(first, whole, w, h)
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+from dataclasses import replace
 
 import cv2
 import numpy as np
@@ -66,13 +67,20 @@ def predict_cues(
     rgb: np.ndarray | None = None,
     depth_mm: np.ndarray | None = None,
     weights: str | os.PathLike | None = None,
+    image_size: int | None = None,
 ) -> Cues:
     """Silhouette and joints of one image (H, W, 3) uint8 and/or depth map (H, W) mm, in its own pixels.
 
     The image should be framed on the foot (the networks were trained on views centred near the foot);
-    the whole-photo pipeline crops around the foot first.
+    the whole-photo pipeline crops around the foot first. ``image_size``: the side the image is resized to for
+    the network (default the side it was trained at; a multiple of 32): a larger side for a photo in which the
+    foot is smaller than in the training views keeps the foot's size in network pixels.
     """
     model, config = network_for(input_kind, weights)
+    if image_size is not None:
+        if image_size % 32 or image_size < 64:
+            raise ValueError(f"image_size must be a multiple of 32 and at least 64, got {image_size}")
+        config = replace(config, image_size=image_size)
     ref = rgb if rgb is not None else depth_mm
     if ref is None:
         raise ValueError("predict_cues needs an image, a depth map, or both")
