@@ -21,7 +21,7 @@ from footmesh.eval import thesis
 from footmesh.model.skeleton import JOINT_NAMES
 
 INPUTS = ("rgb", "rgbd", "depth")
-KEYS = ["rgb", "depth", "silhouette", "joints2d", "joints_visible", "view_id"]
+KEYS = ["rgb", "depth", "silhouette", "joints2d", "joints_visible", "view_id", "side"]
 
 
 @dataclass
@@ -35,6 +35,7 @@ class CuesScores:
     joint_err: list[np.ndarray] = field(default_factory=list)  # (18,) px, NaN where the joint is outside
     visible: list[np.ndarray] = field(default_factory=list)
     view_id: list[int] = field(default_factory=list)
+    side_right: list[bool] = field(default_factory=list)  # empty for a network without a left/right head
     seconds: float = 0.0
 
     def summary(self) -> dict:
@@ -52,6 +53,7 @@ class CuesScores:
             "joint_px_median": float(np.nanmedian(err)),
             "joint_px_visible_mean": float(np.nanmean(np.where(vis, err, np.nan))),
             "ms_per_image": 1000 * self.seconds / max(len(self.wrong), 1),
+            "side_right_pct": 100 * float(np.mean(self.side_right)) if self.side_right else None,
         }
 
 
@@ -77,7 +79,7 @@ def evaluate(
             rgbs.append(r)
             depths.append(d)
         t0 = time.perf_counter()
-        sil, joints, _, _ = predict_batch(
+        sil, joints, _, right = predict_batch(
             model,
             config,
             np.stack(rgbs) if input_kind != "depth" else None,
@@ -85,6 +87,8 @@ def evaluate(
             out_size=(size, size),
         )
         scores.seconds += time.perf_counter() - t0
+        if right is not None:
+            scores.side_right += [bool(p >= 0.5) == bool(s["side"]) for s, p in zip(samples, right, strict=True)]
         for s, p_sil, p_joints in zip(samples, sil, joints, strict=True):
             truth = s["silhouette"].astype(bool)
             pred = p_sil >= 0.5
@@ -142,6 +146,9 @@ def format_tables(results: dict[str, CuesScores], view_results: dict[str, CuesSc
     lines.append(f"| mean, visible joints only | {cells} |")
     cells = " | ".join(f"{summ[k]['ms_per_image']:.1f} | - " for k in kinds)
     lines.append(f"| network time, ms per image (batch 64) | {cells} |")
+    sides = [summ[k]["side_right_pct"] for k in kinds]
+    cells = " | ".join("no head | -" if p is None else f"{p:.1f} | -" for p in sides)
+    lines.append(f"| left/right right, % of images | {cells} |")
     if view_results:
         vkinds = [k for k in INPUTS if k in view_results]
         tables = {k: view_table(view_results[k]) for k in vkinds}
