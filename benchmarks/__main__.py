@@ -5,7 +5,7 @@ from __future__ import annotations
 import importlib
 import sys
 
-BENCHMARKS = ("bench_foot_model", "bench_register", "bench_synth", "bench_cues", "bench_web")
+BENCHMARKS = ("bench_foot_model", "bench_register", "bench_synth", "bench_cues", "bench_first_pass", "bench_web")
 
 
 def main(argv: list[str] | None = None) -> int:

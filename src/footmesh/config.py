@@ -90,6 +90,10 @@ class TrainConfig:
     batch_size: int = 32
     lr: float = 2e-3
     weight_decay: float = 1e-4
+    pretrained_lr_scale: float = 1.0
+    """Learning-rate multiplier of a model's pretrained parts (its ``pretrained_submodules``, e.g. the ImageNet
+    encoder): below 1 fine-tunes them gently, so more of what they learnt from real photos survives training on
+    renders."""
     warmup_steps: int = 200
     val_fraction: float = 0.025
     """Share of the training folder held out for validation (the last samples)."""
@@ -112,6 +116,8 @@ class TrainConfig:
             raise ValueError(f"warmup_steps must be at least 0, got {self.warmup_steps}")
         if self.lr <= 0 or self.weight_decay < 0:
             raise ValueError(f"lr must be > 0 and weight_decay >= 0, got {self.lr} and {self.weight_decay}")
+        if not 0 <= self.pretrained_lr_scale <= 1:
+            raise ValueError(f"pretrained_lr_scale must be in [0, 1], got {self.pretrained_lr_scale}")
         if not 0 <= self.val_fraction < 1:
             raise ValueError(f"val_fraction must be in [0, 1), got {self.val_fraction}")
         if self.checkpoint_every_s <= 0 or (self.max_minutes is not None and self.max_minutes <= 0):

@@ -17,7 +17,7 @@ from footmesh.config import TrainConfig
 from footmesh.cues.weights import load_network
 from footmesh.train import cues as cues_module
 from footmesh.train.cues import WEIGHTS, train_cues
-from footmesh.train.loop import CHECKPOINT, LOG_CSV, lr_at
+from footmesh.train.loop import CHECKPOINT, LOG_CSV, lr_at, param_groups
 
 
 def _checkpoint(out) -> dict:
@@ -129,3 +129,19 @@ def test_lr_warms_up_then_decays():
     assert lrs[1000] == pytest.approx(2e-5)  # 2 % of the peak at the end
     assert lr_at(5000, config) == pytest.approx(2e-5)  # and it stays there
     assert lr_at(0, TrainConfig(steps=10, warmup_steps=0, lr=1.0)) == pytest.approx(1.0)
+
+
+def test_pretrained_parts_get_their_own_learning_rate_scale():
+    from footmesh.config import CuesNetConfig
+    from footmesh.cues.net import build_network
+
+    model = build_network(CuesNetConfig(encoder="efficientnet_lite0", input="rgb"))
+    everything = {id(p) for p in model.parameters()}
+    assert [g["lr_scale"] for g in param_groups(model, TrainConfig())] == [1.0]  # one group, as old checkpoints
+    rest, encoder = param_groups(model, TrainConfig(pretrained_lr_scale=0.1))
+    assert encoder["lr_scale"] == 0.1 and rest["lr_scale"] == 1.0
+    assert {id(p) for p in encoder["params"]} == {id(p) for p in model.encoder.parameters()}
+    assert {id(p) for p in rest["params"]} | {id(p) for p in encoder["params"]} == everything
+    assert len(rest["params"]) + len(encoder["params"]) == len(everything)  # each parameter in one group
+    with pytest.raises(ValueError, match="pretrained_lr_scale"):
+        TrainConfig(pretrained_lr_scale=2.0)

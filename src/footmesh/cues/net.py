@@ -182,6 +182,9 @@ class PretrainedCuesNet(nn.Module):
     from a weights file is built with ``pretrained=False`` and gets everything from that file.
     """
 
+    pretrained_submodules = ("encoder",)
+    """Parts that start from ImageNet weights (``TrainConfig.pretrained_lr_scale`` applies to them)."""
+
     def __init__(self, config: CuesNetConfig, pretrained: bool = False) -> None:
         super().__init__()
         from footmesh.cues.efficientnet import PYRAMID_CHANNELS, EfficientNetLite0Features

@@ -6,7 +6,8 @@ the photos and masks it names (mask pixels: 0 not foot, 1 left foot, 2 right foo
 pass does, and its silhouette (>= 0.5) is compared with the union of the hand-drawn feet. Left/right is scored
 per hand-drawn foot: the network sees the square crop the pipeline's second pass would cut around that foot
 (``pipeline.crop_around``, ``MeasureConfig.crop_fill``), so the side is judged apart from the first pass's
-silhouette. These photos are for evaluation only: nothing here trains or tunes on them.
+silhouette; that crop's silhouette is scored too (IoU with the hand-drawn feet inside the crop), as it is the
+one the fit sees. These photos are for evaluation only: nothing here trains or tunes on them.
 """
 
 from __future__ import annotations
@@ -31,7 +32,8 @@ THUMB_PX = 240
 class PhotoScore:
     """Silhouette agreement of one photo: ``iou``, ``precision`` (predicted foot pixels that are foot) and
     ``recall`` (foot pixels predicted), each in [0, 1]; ``feet`` the hand-labelled sides; ``predicted_sides``
-    the network's side of each of those feet (empty for a network without a left/right head)."""
+    the network's side of each of those feet (empty for a network without a left/right head); ``crop_ious`` the
+    IoU of the silhouette on the crop around each foot."""
 
     photo: str
     iou: float
@@ -39,6 +41,7 @@ class PhotoScore:
     recall: float
     feet: tuple[str, ...]
     predicted_sides: tuple[str, ...] = ()
+    crop_ious: tuple[float, ...] = ()
 
 
 def mask_scores(predicted: np.ndarray, truth: np.ndarray) -> tuple[float, float, float]:
@@ -102,8 +105,8 @@ def evaluate_set(
         truth = truth_img > 0
         iou, precision, recall = mask_scores(predicted, truth)
         feet = tuple(f["side"] for f in entry["feet"])
-        sides = predicted_sides(rgb, truth_img, feet, weights)
-        scores.append(PhotoScore(entry["photo"], iou, precision, recall, feet, sides))
+        sides, crop_ious = crop_scores(rgb, truth_img, feet, weights)
+        scores.append(PhotoScore(entry["photo"], iou, precision, recall, feet, sides, crop_ious))
         if sheet is not None:
             said = f" L/R {''.join(s[0].upper() for s in sides)}" if sides else ""
             tiles.append(overlay_tile(rgb, predicted, truth, f"IoU {iou:.2f}{said}"))
@@ -112,27 +115,29 @@ def evaluate_set(
     return scores
 
 
-def predicted_sides(
+def crop_scores(
     rgb: np.ndarray, mask: np.ndarray, feet: tuple[str, ...], weights: str | os.PathLike | None
-) -> tuple[str, ...]:
-    """The network's side of each hand-drawn foot (``mask`` values ``MASK_VALUE``), from the crop around it; empty
-    when the network has no left/right head."""
+) -> tuple[tuple[str, ...], tuple[float, ...]]:
+    """The network's side of each hand-drawn foot (``mask`` values ``MASK_VALUE``) from the crop around it (empty
+    when the network has no left/right head), and the IoU of that crop's silhouette with the feet in the crop."""
     from footmesh.config import MeasureConfig
     from footmesh.cues.predict import predict_cues
     from footmesh.pipeline import crop_around
 
     fill = MeasureConfig().crop_fill
-    sides = []
+    sides, ious = [], []
     for side in feet:
         ys, xs = np.nonzero(mask == MASK_VALUE[side])
         if not len(xs):
             raise ValueError(f"the mask has no pixels of the {side} foot its labels name")
         crop = crop_around(xs.min(), ys.min(), xs.max() - xs.min() + 1, ys.max() - ys.min() + 1, fill)
-        right = predict_cues("rgb", crop.cut(rgb), weights=weights).right_probability
-        if right is None:
-            return ()
-        sides.append("right" if right >= 0.5 else "left")
-    return tuple(sides)
+        cues = predict_cues("rgb", crop.cut(rgb), weights=weights)
+        truth = crop.cut(mask, fill=0) > 0
+        predicted = cv2.resize(cues.silhouette, truth.shape[::-1], interpolation=cv2.INTER_LINEAR) >= 0.5
+        ious.append(mask_scores(predicted, truth)[0])
+        if cues.right_probability is not None:
+            sides.append("right" if cues.right_probability >= 0.5 else "left")
+    return tuple(sides) if len(sides) == len(feet) else (), tuple(ious)
 
 
 def overlay_tile(rgb: np.ndarray, predicted: np.ndarray, truth: np.ndarray, caption: str) -> np.ndarray:
@@ -161,8 +166,8 @@ def write_contact_sheet(tiles: list[np.ndarray], path: str | os.PathLike, column
 
 
 def summarise(scores: list[PhotoScore]) -> dict[str, float]:
-    """Mean IoU, precision and recall, the share of photos with IoU >= ``GOOD_IOU`` and of feet whose side the
-    network got right (None without a left/right head)."""
+    """Mean IoU, precision and recall, the share of photos with IoU >= ``GOOD_IOU``, the mean IoU on the crops
+    around the feet and the share of feet whose side the network got right (None without a left/right head)."""
     if not scores:
         raise ValueError("no photos to summarise")
     judged = [(t, p) for s in scores if s.predicted_sides for t, p in zip(s.feet, s.predicted_sides, strict=True)]
@@ -173,6 +178,7 @@ def summarise(scores: list[PhotoScore]) -> dict[str, float]:
         "mean_precision": float(np.mean([s.precision for s in scores])),
         "mean_recall": float(np.mean([s.recall for s in scores])),
         "share_iou_ge_0.8": float(np.mean([s.iou >= GOOD_IOU for s in scores])),
+        "mean_crop_iou": float(np.mean([i for s in scores for i in s.crop_ious])),
         "side_right_share": float(np.mean([t == p for t, p in judged])) if judged else None,
     }
 
@@ -185,6 +191,7 @@ def format_table(name: str, summary: dict[str, float]) -> str:
         ("mean precision", f"{summary['mean_precision']:.3f}", "-"),
         ("mean recall", f"{summary['mean_recall']:.3f}", "-"),
         (f"photos with IoU >= {GOOD_IOU}", f"{100 * summary['share_iou_ge_0.8']:.1f} %", "-"),
+        ("mean IoU on the crop per foot", f"{summary['mean_crop_iou']:.3f}", "- (second pass, what the fit sees)"),
         ("side right, per foot", "no left/right head" if side is None else f"{100 * side:.1f} %", ">= 95 %"),
     ]
     width = max(len(r[0]) for r in rows)

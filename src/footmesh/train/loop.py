@@ -74,6 +74,19 @@ def lr_at(step: int, config: TrainConfig) -> float:
     return config.lr * (0.02 + 0.98 * 0.5 * (1 + math.cos(math.pi * t)))
 
 
+def param_groups(model: nn.Module, config: TrainConfig) -> list[dict[str, Any]]:
+    """The optimiser's parameter groups, each with its ``lr_scale``: the parts a model names in
+    ``pretrained_submodules`` at ``config.pretrained_lr_scale`` (one group when that is 1, as older checkpoints
+    have), the rest at 1."""
+    names = getattr(model, "pretrained_submodules", ())
+    if config.pretrained_lr_scale == 1.0 or not names:
+        return [{"params": list(model.parameters()), "lr_scale": 1.0}]
+    pretrained = {id(p) for name in names for p in getattr(model, name).parameters()}
+    rest = [p for p in model.parameters() if id(p) not in pretrained]
+    chosen = [p for p in model.parameters() if id(p) in pretrained]
+    return [{"params": rest, "lr_scale": 1.0}, {"params": chosen, "lr_scale": config.pretrained_lr_scale}]
+
+
 @dataclass
 class TrainResult:
     steps_done: int
@@ -126,7 +139,7 @@ def run_training(
     torch.set_num_threads(threads)
     torch.manual_seed(config.seed)
 
-    optimizer = torch.optim.AdamW(model.parameters(), lr=config.lr, weight_decay=config.weight_decay)
+    optimizer = torch.optim.AdamW(param_groups(model, config), lr=config.lr, weight_decay=config.weight_decay)
     step, elapsed, metrics = 0, 0.0, {}
     ckpt_path = out / CHECKPOINT
     if ckpt_path.is_file():
@@ -174,7 +187,7 @@ def run_training(
         while step < config.steps:
             t0 = time.time()
             for group in optimizer.param_groups:
-                group["lr"] = lr_at(step, config)
+                group["lr"] = lr_at(step, config) * group["lr_scale"]
             generator = torch.Generator().manual_seed(config.seed * 1_000_003 + step)
             loss, terms = task.loss(net, step, generator, ctx.rank, ctx.world)
             optimizer.zero_grad(set_to_none=True)
