@@ -4,12 +4,15 @@ from __future__ import annotations
 
 import json
 import math
+from pathlib import Path
 
 import cv2
 import numpy as np
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
 
-from footmesh.batch import output_folders, summary_table
+from footmesh.batch import check_output, output_folders, summary_table
 from footmesh.cli import main
 from footmesh.config import MeasureConfig
 from footmesh.cues import Cues
@@ -84,6 +87,28 @@ def test_output_folders_one_per_photo_and_unique(tmp_path):
     assert output_folders(["a/x.jpg"], tmp_path) == [tmp_path]
     names = [p.name for p in output_folders(["a/x.jpg", "b/x.jpg", "c/y.png"], tmp_path)]
     assert names == ["x", "x-2", "y"]
+    # a repeated stem never takes another photo's own folder (a.png's result was overwritten by a-2.jpg's)
+    names = [p.name for p in output_folders(["d/a.jpg", "d/a.png", "d/a-2.jpg"], tmp_path)]
+    assert names == ["a", "a-3", "a-2"]
+
+
+@given(st.lists(st.sampled_from(["a", "a-2", "a-3", "a-2-2", "b", ""]), min_size=2, max_size=12))
+def test_output_folders_are_always_distinct(stems):
+    images = [f"dir{i}/{stem}.jpg" for i, stem in enumerate(stems)]
+    folders = output_folders(images, Path("out"))
+    assert len(set(folders)) == len(images)
+
+
+def test_an_output_that_cannot_be_a_folder_is_refused_before_any_work(tmp_path, capsys, monkeypatch):
+    taken = tmp_path / "taken.txt"
+    taken.write_text("x")
+    for out, said in (("", "empty"), (str(taken), "existing file"), (str(taken / "sub"), "is a file")):
+        assert main(["measure", "missing.jpg", "--out", out]) == 2
+        err = capsys.readouterr().err
+        assert said in err and "Traceback" not in err and "missing.jpg" not in err  # before the photo is read
+    monkeypatch.setattr("footmesh.batch.os.access", lambda *args: False)  # a read-only folder (tests run as root)
+    with pytest.raises(ValueError, match="no permission"):
+        check_output(tmp_path / "new")
 
 
 def test_summary_table_lists_unscaled_and_failed_photos():
@@ -297,6 +322,12 @@ def test_batch_goes_on_after_a_bad_photo_and_resumes(tmp_path, capsys):
     assert result.stat().st_mtime_ns == first  # already measured: skipped
     out_text = capsys.readouterr().out
     assert "failed" in out_text and ex.image.name in out_text
+    # another option changes the result: measured again, then resumed with that option
+    assert main(["measure", str(ex.image), str(bad), "--side", "left", "--out", str(out)]) == 2
+    second = result.stat().st_mtime_ns
+    assert second != first and json.loads(result.read_text())["request"]["side"] == "left"
+    assert main(["measure", str(ex.image), str(bad), "--side", "left", "--out", str(out)]) == 2
+    assert result.stat().st_mtime_ns == second
 
 
 def test_the_mesh_decoder_reconstructs_the_foot_in_the_photos_camera_frame():

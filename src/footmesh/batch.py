@@ -5,12 +5,14 @@ from __future__ import annotations
 import hashlib
 import json
 import logging
+import os
 import sys
 from collections.abc import Sequence
 from pathlib import Path
 
+from footmesh import __version__
 from footmesh.load import LoadError
-from footmesh.pipeline import PipelineError, measure_photo
+from footmesh.pipeline import PipelineError, measure_photo, request_options
 
 log = logging.getLogger("footmesh.measure")
 
@@ -23,28 +25,67 @@ def _sha256(path: str | Path) -> str | None:
 
 
 def output_folders(images: Sequence[str], out: Path) -> list[Path]:
-    """``out`` for one photo; ``out/<stem>`` each for several (``<stem>-2``... when stems repeat)."""
+    """``out`` for one photo; ``out/<stem>`` each for several, always distinct: a repeated stem gets the first
+    free ``<stem>-2``, ``<stem>-3``... that is no other photo's own stem (``a.jpg a.png a-2.jpg``: a, a-3, a-2)."""
     if len(images) == 1:
         return [out]
-    seen: dict[str, int] = {}
-    folders = []
-    for image in images:
-        stem = Path(image).stem or "photo"
-        seen[stem] = seen.get(stem, 0) + 1
-        folders.append(out / (stem if seen[stem] == 1 else f"{stem}-{seen[stem]}"))
-    return folders
+    stems = [Path(image).stem or "photo" for image in images]
+    taken: set[str] = set()
+    reserved = set(stems)
+    names = []
+    for stem in stems:
+        name, k = stem, 1
+        while name in taken or (k > 1 and name in reserved):
+            k += 1
+            name = f"{stem}-{k}"
+        taken.add(name)
+        names.append(name)
+    return [out / name for name in names]
 
 
-def _done(folder: Path, image: str) -> dict | None:
-    """The result already in ``folder`` for this very photo (same bytes), if any."""
+def check_output(out: str | Path) -> Path:
+    """The output folder, refused before any work when it cannot be one: empty, an existing file, or not
+    writable."""
+    if str(out).strip() == "":
+        raise ValueError("--out is empty; give the folder to write the results into")
+    path = Path(out)
+    if path.exists() and not path.is_dir():
+        raise ValueError(f"--out {out} is an existing file, not a folder; give a folder to write the results into")
+    existing = path
+    while not existing.exists():
+        existing = existing.parent
+    if not existing.is_dir():
+        raise ValueError(f"--out {out}: {existing} is a file, so the folder cannot be made there")
+    if not os.access(existing, os.W_OK | os.X_OK):
+        raise ValueError(f"--out {out}: no permission to write in {existing}")
+    return path
+
+
+def _wanted(image: str, depth: str | None, intrinsics: str | None, request: dict[str, str]) -> dict | None:
+    """What a result must record to be this measurement: the inputs' SHA-256, the options, the version (None
+    when an input cannot be read: it is measured, and fails with its own message)."""
+    hashes = {"image": _sha256(image)}
+    if depth is not None:
+        hashes["depth"] = _sha256(depth)
+    if intrinsics is not None:
+        hashes["intrinsics"] = _sha256(intrinsics)
+    if None in hashes.values():
+        return None
+    return {"input_sha256": hashes, "request": request, "version": __version__}
+
+
+def _done(folder: Path, wanted: dict | None) -> dict | None:
+    """The result already in ``folder`` for this very measurement (same input bytes, options and version)."""
     path = folder / "result.json"
-    if not path.is_file():
+    if wanted is None or not path.is_file():
         return None
     try:
         result = json.loads(path.read_text())
-    except (OSError, json.JSONDecodeError):
+    except (OSError, json.JSONDecodeError, RecursionError):
         return None
-    return result if result.get("input_sha256", {}).get("image") == _sha256(image) else None
+    if not isinstance(result, dict):
+        return None
+    return result if all(result.get(key) == value for key, value in wanted.items()) else None
 
 
 def measure_batch(
@@ -57,15 +98,14 @@ def measure_batch(
     print_json: bool = False,
 ) -> int:
     """Measure every photo (skipping those already measured into their folder); returns the exit code."""
-    out = Path(out)
-    folders = output_folders(images, out)
+    folders = output_folders(images, check_output(out))
     results: list[tuple[str, dict | None, str | None]] = []
     for i, (image, folder) in enumerate(zip(images, folders, strict=True)):
         k = None
         if intrinsics:
             k = intrinsics[0] if len(intrinsics) == 1 else intrinsics[i]
         depth = depths[i] if depths else None
-        previous = _done(folder, image) if depth is None and k is None else None
+        previous = _done(folder, _wanted(image, depth, k, request_options(side, depth_unit, "auto")))
         if previous is not None:
             log.info("%s: already measured in %s (delete it to measure again)", image, folder)
             results.append((image, previous, None))
@@ -77,6 +117,10 @@ def measure_batch(
         except (PipelineError, LoadError, FileNotFoundError, ValueError) as exc:
             results.append((image, None, str(exc)))
             print(f"footmesh: error: {image}: {exc}", file=sys.stderr)
+        except OSError as exc:  # writing the results (disk full, permissions changed): the rest can still be done
+            message = f"could not write its results into {folder}: {exc.strerror or exc}"
+            results.append((image, None, message))
+            print(f"footmesh: error: {image}: {message}", file=sys.stderr)
     if print_json:
         payload = [r for _, r, _ in results if r is not None]
         print(json.dumps(payload[0] if len(images) == 1 and payload else payload, indent=2))

@@ -246,9 +246,15 @@ def measure_photo(
     start = time.perf_counter()
     photo = load_photo(image, depth=depth, depth_unit=depth_unit, intrinsics=intrinsics)
     result, files = run_pipeline(photo, side, config, input)
+    result["request"] = request_options(side, depth_unit, input)
     result["seconds"] = round(time.perf_counter() - start, 3)
     write_outputs(Path(out_dir), result, files)
     return result
+
+
+def request_options(side: str, depth_unit: str, input: str) -> dict[str, str]:
+    """The options of a measurement that change its result besides the input files (``result["request"]``)."""
+    return {"side": side, "depth_unit": depth_unit, "input": input}
 
 
 @dataclass
