@@ -185,6 +185,31 @@ def test_corrupt_png_data_is_refused(tmp_path):
     assert "bad.png is truncated or corrupt" in error(load_image, tmp_path / "bad.png")
 
 
+def test_symbolic_link_loops_and_dangling_links_are_named(tmp_path):
+    (tmp_path / "a.jpg").symlink_to(tmp_path / "b.jpg")
+    (tmp_path / "b.jpg").symlink_to(tmp_path / "a.jpg")
+    assert "is a symbolic-link loop" in error(load_image, tmp_path / "a.jpg")
+    (tmp_path / "c.jpg").symlink_to(tmp_path / "gone.jpg")
+    assert "is a symbolic link to" in error(load_image, tmp_path / "c.jpg")
+    assert "does not exist" in error(load_image, tmp_path / "none.jpg")
+
+
+def test_a_multi_page_tiff_with_a_broken_page_chain_is_corrupt(tmp_path):
+    pages = [Image.fromarray(quadrants()), Image.fromarray(quadrants()[::-1].copy())]
+    path = tmp_path / "p.tif"
+    pages[0].save(path, save_all=True, append_images=pages[1:])
+    rgb, info = load_image(path)
+    assert rgb.shape == (H, W, 3) and "first of 2 frames used" in info.notes
+    data = bytearray(path.read_bytes())
+    offset = int.from_bytes(data[4:8], "little")  # first IFD; its entries are followed by the next IFD's offset
+    entries = int.from_bytes(data[offset : offset + 2], "little")
+    next_at = offset + 2 + 12 * entries
+    data[next_at : next_at + 4] = (len(data) + 10_000).to_bytes(4, "little")  # the second page points nowhere
+    path.write_bytes(bytes(data))
+    message = error(load_image, path)
+    assert "truncated or corrupt" in message
+
+
 def test_files_that_are_not_images(tmp_path):
     text = tmp_path / "foot.jpg"
     text.write_text("this is not a photo\n")
@@ -211,7 +236,8 @@ def test_size_limits(tmp_path, monkeypatch):
     # Pillow's own decompression-bomb guard becomes the same kind of message
     monkeypatch.setattr(Image, "MAX_IMAGE_PIXELS", 1000)
     message = error(load_image, big)
-    assert "big.png is too large to decode safely" in message
+    assert "big.png has more than 0.002 MP" in message and "downscale it" in message
+    assert "bomb" not in message and "DOS" not in message  # the project's words, not Pillow's
 
 
 # --- depth ----------------------------------------------------------------------------------------------------
@@ -268,7 +294,25 @@ def test_depth_of_the_wrong_size(tmp_path):
     message = error(load_depth, tmp_path / "d.npy", "mm", (W, H))
     assert f"is 64 x 48 px but the image is {W} x {H} px" in message and "pixel for pixel" in message
     np.save(tmp_path / "t.npy", depth_scene(H, W).astype(np.float32))
-    assert "before the image's EXIF rotation" in error(load_depth, tmp_path / "t.npy", "mm", (W, H))
+    assert "before the image's EXIF rotation" in error(load_depth, tmp_path / "t.npy", "mm", (W, H), rotated=True)
+    assert "width and height are swapped" in error(load_depth, tmp_path / "t.npy", "mm", (W, H))  # no rotation
+
+
+def test_intrinsics_with_width_and_height_swapped_are_not_blamed_on_a_rotation(tmp_path):
+    photo = save(tmp_path / "p.png", quadrants())  # no EXIF orientation
+    k = write_k(tmp_path, width=H, height=W, cx=35.5, cy=47.5)
+    message = error(load_photo, photo, intrinsics=k)
+    assert "width and height are swapped" in message and "EXIF" not in message
+
+
+def test_intrinsics_json_that_is_deeply_nested_or_has_huge_numbers(tmp_path):
+    (tmp_path / "deep.json").write_text("[" * 60000)
+    assert "not valid JSON" in error(load_intrinsics, tmp_path / "deep.json", (W, H))
+    path = write_k(tmp_path)
+    for huge in ("9" * 5001, "9" * 5001 + ".0"):
+        path.write_text(json.dumps({**GOOD_K, "fx": 1}).replace('"fx": 1', '"fx": ' + huge))
+        message = error(load_intrinsics, path, (W, H))
+        assert "'fx' is not a usable number" in message and str(path) in message and "4300" not in message
 
 
 def test_depth_with_too_few_valid_pixels(tmp_path):

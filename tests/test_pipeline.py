@@ -307,6 +307,18 @@ def test_corrupt_file_and_wrong_depth_are_refused_and_the_rest_is_done(tmp_path,
     assert "broken.jpg" in err and "Traceback" not in err
 
 
+def test_json_of_a_refused_photo_is_one_object_naming_it_once(tmp_path, capsys):
+    bad = tmp_path / "notes.jpg"
+    bad.write_text("not an image")
+    assert main(["measure", str(bad), "--json", "--out", str(tmp_path / "out")]) == 2
+    captured = capsys.readouterr()
+    printed = json.loads(captured.out)
+    assert printed["image"] == str(bad) and "not an image that can be read" in printed["error"]
+    assert captured.err.count(str(bad)) == 1 and captured.err.startswith("footmesh: error: image ")
+    assert main(["measure", str(bad), str(bad), "--json", "--out", str(tmp_path / "two")]) == 2
+    assert [entry["image"] for entry in json.loads(capsys.readouterr().out)] == [str(bad)] * 2
+
+
 @pytest.mark.slow
 def test_batch_goes_on_after_a_bad_photo_and_resumes(tmp_path, capsys):
     ex = next(e for e in examples() if e.name == "a4_left")

@@ -116,19 +116,24 @@ def measure_batch(
             log.info("%s: %s", image, _one_line(result))
         except (PipelineError, LoadError, FileNotFoundError, ValueError) as exc:
             results.append((image, None, str(exc)))
-            print(f"footmesh: error: {image}: {exc}", file=sys.stderr)
+            print(f"footmesh: error: {_naming(image, str(exc))}", file=sys.stderr)
         except OSError as exc:  # writing the results (disk full, permissions changed): the rest can still be done
             message = f"could not write its results into {folder}: {exc.strerror or exc}"
             results.append((image, None, message))
-            print(f"footmesh: error: {image}: {message}", file=sys.stderr)
+            print(f"footmesh: error: {_naming(image, message)}", file=sys.stderr)
     if print_json:
-        payload = [r for _, r, _ in results if r is not None]
-        print(json.dumps(payload[0] if len(images) == 1 and payload else payload, indent=2))
+        payload = [r if r is not None else {"image": image, "error": error} for image, r, error in results]
+        print(json.dumps(payload[0] if len(images) == 1 else payload, indent=2))
     if len(images) > 1:
         print(summary_table(results), file=sys.stderr if print_json else sys.stdout)
     elif results[0][1] is not None and not print_json:
         print(summary_table(results))
     return 0 if all(err is None for _, _, err in results) else 2
+
+
+def _naming(image: str, message: str) -> str:
+    """``message`` about ``image``, naming the photo once (loader messages name it already)."""
+    return message if str(image) in message else f"{image}: {message}"
 
 
 def _one_line(result: dict) -> str:

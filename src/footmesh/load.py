@@ -16,6 +16,7 @@ the centre of the top-left pixel is ``(0, 0)`` and an image of width ``W`` spans
 
 from __future__ import annotations
 
+import errno
 import hashlib
 import io
 import json
@@ -213,7 +214,7 @@ def _read_bytes(path: str | os.PathLike, role: str) -> tuple[Path, bytes]:
     p = Path(path)
     try:
         if not p.exists():
-            raise LoadError(f"{role} {p} does not exist")
+            raise LoadError(_missing(role, p))
         if p.is_dir():
             raise LoadError(f"{role} {p} is a directory, not a file")
         size = p.stat().st_size
@@ -227,6 +228,21 @@ def _read_bytes(path: str | os.PathLike, role: str) -> tuple[Path, bytes]:
     if not data:  # a pipe or a file emptied meanwhile
         raise LoadError(f"{role} {p} is empty (0 bytes)")
     return p, data
+
+
+def _missing(role: str, path: Path) -> str:
+    """Why ``path`` (which does not exist as a file) cannot be read: a symbolic-link loop, a dangling link, or
+    nothing there."""
+    if path.is_symlink():
+        try:
+            path.resolve(strict=True)
+        except RuntimeError:  # Python < 3.13 reports a loop so
+            return f"{role} {path} is a symbolic-link loop"
+        except OSError as exc:
+            if exc.errno == errno.ELOOP:
+                return f"{role} {path} is a symbolic-link loop"
+        return f"{role} {path} is a symbolic link to {os.readlink(path)}, which does not exist"
+    return f"{role} {path} does not exist"
 
 
 def sha256_hex(data: bytes) -> str:
@@ -247,6 +263,14 @@ def _not_readable(role: str, path: Path, data: bytes) -> LoadError:
     )
 
 
+def _too_many_pixels(role: str, path: Path, max_pixels: int) -> LoadError:
+    """The error for an image past Pillow's own hard limit (its size is not known then)."""
+    return LoadError(
+        f"{role} {path} has more than {2 * Image.MAX_IMAGE_PIXELS / 1e6:.4g} MP, far more than the limit of "
+        f"{max_pixels / 1e6:.1f} MP; downscale it"
+    )
+
+
 def _open_image(data: bytes, path: Path, role: str, max_pixels: int) -> Image.Image:
     """Open and fully decode ``data`` (a truncated file fails here, not later), refusing more than ``max_pixels``."""
     with warnings.catch_warnings():
@@ -255,7 +279,7 @@ def _open_image(data: bytes, path: Path, role: str, max_pixels: int) -> Image.Im
         try:
             im = Image.open(io.BytesIO(data))
         except Image.DecompressionBombError as exc:
-            raise LoadError(f"{role} {path} is too large to decode safely ({exc})") from exc
+            raise _too_many_pixels(role, path, max_pixels) from exc
         except UnidentifiedImageError as exc:
             raise _not_readable(role, path, data) from exc
         except Exception as exc:  # Pillow's plugins raise many types for a broken header
@@ -271,7 +295,7 @@ def _open_image(data: bytes, path: Path, role: str, max_pixels: int) -> Image.Im
         try:
             im.load()
         except Image.DecompressionBombError as exc:
-            raise LoadError(f"{role} {path} is too large to decode safely ({exc})") from exc
+            raise _too_many_pixels(role, path, max_pixels) from exc
         except Exception as exc:
             raise LoadError(f"{role} {path} is truncated or corrupt ({type(exc).__name__}: {exc})") from exc
     return im
@@ -358,8 +382,14 @@ def _decode_photo(data: bytes, path: Path, max_pixels: int) -> tuple[np.ndarray,
     im = _open_image(data, path, role, max_pixels)
     fmt, mode, raw_size = im.format or "unknown", im.mode, im.size
     orientation, f35, focal, camera, notes = _read_exif(im, path)
-    if getattr(im, "n_frames", 1) > 1:
-        notes.append(f"first of {im.n_frames} frames used")
+    try:
+        frames = getattr(im, "n_frames", 1)  # a TIFF counts its pages by walking them: a broken chain raises
+    except Exception as exc:  # Pillow raises TypeError, KeyError, OSError... for a broken page chain
+        raise LoadError(
+            f"{role} {path} is truncated or corrupt (its pages cannot be counted: {type(exc).__name__})"
+        ) from exc
+    if frames > 1:
+        notes.append(f"first of {frames} frames used")
     if orientation != 1:
         try:
             im = ImageOps.exif_transpose(im)
@@ -388,16 +418,19 @@ def _decode_photo(data: bytes, path: Path, max_pixels: int) -> tuple[np.ndarray,
 # --- depth ----------------------------------------------------------------------------------------------------
 
 
-def load_depth(path: str | os.PathLike, unit: DepthUnit, image_size: tuple[int, int]) -> np.ndarray:
+def load_depth(
+    path: str | os.PathLike, unit: DepthUnit, image_size: tuple[int, int], rotated: bool = False
+) -> np.ndarray:
     """Depth map aligned with an upright image of ``image_size`` = (width, height) px: (H, W) float32 mm, 0 = missing.
 
     A 16-bit single-channel PNG/TIFF or an integer ``.npy`` holds millimetres (0 = missing) whatever ``unit`` says,
     so ``unit="m"`` with integer depth is refused; a float ``.npy`` is in ``unit`` (NaN, inf, <= 0 = missing).
     The size must equal ``image_size``; the unit is checked against the depths a foot photo has
-    (``DEPTH_RANGE_MM``), and fewer than ``MIN_VALID_DEPTH_FRACTION`` valid pixels is an error.
+    (``DEPTH_RANGE_MM``), and fewer than ``MIN_VALID_DEPTH_FRACTION`` valid pixels is an error. ``rotated``: the
+    image was turned by its EXIF orientation (a map of swapped size is then blamed on the rotation).
     """
     p, data = _read_bytes(path, "depth map")
-    return _decode_depth(data, p, unit, image_size)
+    return _decode_depth(data, p, unit, image_size, rotated)
 
 
 def _depth_array(data: bytes, path: Path) -> np.ndarray:
@@ -422,7 +455,7 @@ def _depth_array(data: bytes, path: Path) -> np.ndarray:
     raise LoadError(f"{role} {path} has {len(im.getbands())} channels ({im.mode}); depth must be a single channel")
 
 
-def _decode_depth(data: bytes, path: Path, unit: str, image_size: tuple[int, int]) -> np.ndarray:
+def _decode_depth(data: bytes, path: Path, unit: str, image_size: tuple[int, int], rotated: bool = False) -> np.ndarray:
     role = "depth map"
     if unit not in ("mm", "m"):
         raise LoadError(f"depth unit must be 'mm' or 'm', got {unit!r} (for depth map {path})")
@@ -446,11 +479,12 @@ def _decode_depth(data: bytes, path: Path, unit: str, image_size: tuple[int, int
     h, w = raw.shape
     iw, ih = image_size
     if (w, h) != (iw, ih):
-        hint = (
-            "; it looks taken before the image's EXIF rotation (width and height swapped): rotate it to match"
-            if (w, h) == (ih, iw)
-            else "; it must be aligned pixel for pixel with the image"
-        )
+        if (w, h) == (ih, iw) and rotated:
+            hint = "; it looks taken before the image's EXIF rotation (width and height swapped): rotate it to match"
+        elif (w, h) == (ih, iw):
+            hint = "; its width and height are swapped (turned by 90 degrees?): it must be aligned with the image"
+        else:
+            hint = "; it must be aligned pixel for pixel with the image"
         raise LoadError(f"{role} {path} is {w} x {h} px but the image is {iw} x {ih} px after EXIF rotation{hint}")
 
     with np.errstate(invalid="ignore", over="ignore"):  # NaN, inf and huge values are simply missing
@@ -510,16 +544,34 @@ def default_intrinsics(width: int, height: int, focal_length_35mm: float | None 
     return Intrinsics(f_px, f_px, (width - 1) / 2, (height - 1) / 2, int(width), int(height), source, note)
 
 
-def load_intrinsics(path: str | os.PathLike, image_size: tuple[int, int]) -> Intrinsics:
+def load_intrinsics(path: str | os.PathLike, image_size: tuple[int, int], rotated: bool = False) -> Intrinsics:
     """Intrinsics from a JSON file ``{"fx", "fy", "cx", "cy", "width", "height"}`` (px of the upright image).
 
-    ``image_size`` = (width, height) px of the upright image; the file's width and height must equal it.
+    ``image_size`` = (width, height) px of the upright image; the file's width and height must equal it
+    (``rotated``: the image was turned by its EXIF orientation, as for ``load_depth``).
     """
     p, data = _read_bytes(path, "intrinsics file")
-    return _decode_intrinsics(data, p, image_size)
+    return _decode_intrinsics(data, p, image_size, rotated)
+
+
+_UNUSABLE_NUMBER = object()
+"""What ``_json_int`` makes of an integer with more digits than any camera needs."""
+
+
+def _json_int(text: str) -> int | object:
+    """A JSON integer, or ``_UNUSABLE_NUMBER`` past 30 digits (Python refuses to convert beyond 4,300)."""
+    return int(text) if len(text) <= 30 else _UNUSABLE_NUMBER
+
+
+def _json_float(text: str) -> float | object:
+    """A JSON decimal, or ``_UNUSABLE_NUMBER`` when it overflows a float."""
+    value = float(text)
+    return value if math.isfinite(value) else _UNUSABLE_NUMBER
 
 
 def _json_number(role: str, path: Path, key: str, value: Any) -> float:
+    if value is _UNUSABLE_NUMBER:
+        raise LoadError(f"{role} {path}: {key!r} is not a usable number (too many digits)")
     if isinstance(value, bool) or not isinstance(value, int | float):
         raise LoadError(f"{role} {path}: {key!r} must be a number, got {json.dumps(value)}")
     if not math.isfinite(value):
@@ -527,14 +579,16 @@ def _json_number(role: str, path: Path, key: str, value: Any) -> float:
     return float(value)
 
 
-def _decode_intrinsics(data: bytes, path: Path, image_size: tuple[int, int]) -> Intrinsics:
+def _decode_intrinsics(data: bytes, path: Path, image_size: tuple[int, int], rotated: bool = False) -> Intrinsics:
     role = "intrinsics file"
     try:
-        obj = json.loads(data.decode("utf-8-sig"))
+        obj = json.loads(data.decode("utf-8-sig"), parse_int=_json_int, parse_float=_json_float)
     except UnicodeDecodeError as exc:
         raise LoadError(f"{role} {path} is not UTF-8 text (JSON expected)") from exc
     except json.JSONDecodeError as exc:
         raise LoadError(f"{role} {path} is not valid JSON: {exc.msg} at line {exc.lineno} column {exc.colno}") from exc
+    except RecursionError:
+        raise LoadError(f"{role} {path} is not valid JSON: nested too deeply for intrinsics") from None
     if not isinstance(obj, dict):
         raise LoadError(f"{role} {path} must hold a JSON object with keys {', '.join(INTRINSICS_KEYS)}")
     missing = [k for k in INTRINSICS_KEYS if k not in obj]
@@ -554,11 +608,13 @@ def _decode_intrinsics(data: bytes, path: Path, image_size: tuple[int, int]) -> 
     w, h = int(v["width"]), int(v["height"])
     iw, ih = image_size
     if (w, h) != (iw, ih):
-        if (w, h) == (ih, iw):
+        if (w, h) == (ih, iw) and rotated:
             hint = (
                 ": the intrinsics look taken before the image's EXIF rotation; give them for the upright image "
                 "(swap fx/fy and width/height, and move cx/cy as the rotation does)"
             )
+        elif (w, h) == (ih, iw):
+            hint = ": its width and height are swapped"
         elif w * ih == h * iw:
             hint = f": same aspect ratio, so scale fx, fy, cx, cy by {iw / w:g} for this image"
         else:
@@ -597,11 +653,11 @@ def load_photo(
     depth_mm = None
     if depth is not None:
         depth_path, depth_bytes = _read_bytes(depth, "depth map")
-        depth_mm = _decode_depth(depth_bytes, depth_path, depth_unit, info.size)
+        depth_mm = _decode_depth(depth_bytes, depth_path, depth_unit, info.size, info.orientation != 1)
         hashes["depth"] = sha256_hex(depth_bytes)
     if intrinsics is not None:
         k_path, k_bytes = _read_bytes(intrinsics, "intrinsics file")
-        k = _decode_intrinsics(k_bytes, k_path, info.size)
+        k = _decode_intrinsics(k_bytes, k_path, info.size, info.orientation != 1)
         hashes["intrinsics"] = sha256_hex(k_bytes)
     else:
         k = default_intrinsics(*info.size, info.focal_length_35mm)
