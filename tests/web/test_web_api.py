@@ -8,6 +8,7 @@ import json
 import multiprocessing
 import threading
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -184,7 +185,9 @@ def test_bad_fields_and_side_files(make_client, demo_photo):
     client = make_client()
     photo = ("foot.jpg", demo_photo, "image/jpeg")
     missing = client.post(MEASURE, data={"side": "left"})
-    assert missing.status_code == 422 and missing.json()["detail"] == "photo: Field required"
+    assert missing.status_code == 400 and missing.json()["detail"] == "photo: Field required"  # docs/web.md
+    as_text = client.post(MEASURE, data={"photo": "x" * 5000})  # a photo sent as a text field
+    assert as_text.status_code == 422 and "x" * 100 not in as_text.text  # the value is not echoed back
     side = client.post(MEASURE, files={"photo": photo}, data={"side": "middle"})
     assert side.status_code == 422 and side.json()["detail"].startswith("side: Input should be")
     depth = client.post(MEASURE, files={"photo": photo, "depth": ("d.png", b"not a depth map", "image/png")})
@@ -193,6 +196,23 @@ def test_bad_fields_and_side_files(make_client, demo_photo):
     assert k.status_code == 400 and "not valid JSON" in k.json()["detail"]
     nan = client.post(MEASURE, files={"photo": photo, "intrinsics": ("k.json", b'{"fx": NaN}', "application/json")})
     assert nan.status_code == 400 and "NaN" in nan.json()["detail"]
+    deep = client.post(MEASURE, files={"photo": photo, "intrinsics": ("k.json", b"[" * 60000, "application/json")})
+    assert deep.status_code == 400 and "not valid JSON" in deep.json()["detail"]
+
+
+def _refuse_naming_the_files(image, out_dir, *, depth=None, intrinsics=None, **options):
+    raise ValueError(f"image {image} is only 1 x 1 px; depth map {depth}; in {Path(image).parent}")
+
+
+def test_refusals_name_the_upload_fields_never_server_paths(make_client, demo_photo, tmp_path):
+    client = make_client(_refuse_naming_the_files)
+    depth = png_bytes(np.full((320, 320), 600, np.uint16))
+    files = {"photo": ("f.jpg", demo_photo, "image/jpeg"), "depth": ("d.png", depth, "image/png")}
+    response = client.post(MEASURE, files=files)
+    detail = response.json()["detail"]
+    assert response.status_code == 422
+    assert "(upload field 'photo')" in detail and "(upload field 'depth')" in detail
+    assert str(tmp_path) not in detail and "/tmp" not in detail
 
 
 def test_pipeline_crash_is_500_and_server_keeps_serving(make_client, demo_photo, tmp_path):

@@ -288,12 +288,16 @@ async def _sweep_forever(store: ResultStore) -> None:
 def _add_error_handlers(app: FastAPI) -> None:
     @app.exception_handler(RequestValidationError)
     async def invalid_request(request: Request, exc: RequestValidationError) -> JSONResponse:
-        parts = []
+        parts, errors, status = [], [], 422
         for err in exc.errors():
             where = ".".join(str(p) for p in err.get("loc", ()) if p not in ("body", "query", "path"))
+            if where == "photo" and err.get("type") == "missing":
+                status = 400  # as an empty photo part: docs/web.md
             parts.append(f"{where}: {err.get('msg', 'invalid')}" if where else str(err.get("msg", "invalid")))
+            # the value sent is never echoed back: it may be a whole photo sent as a text field
+            errors.append({k: v for k, v in err.items() if k in ("type", "loc", "msg")})
         detail = "; ".join(parts) or "invalid request"
-        return JSONResponse({"detail": detail, "errors": jsonable_encoder(exc.errors())}, status_code=422)
+        return JSONResponse({"detail": detail, "errors": jsonable_encoder(errors)}, status_code=status)
 
 
 class _TooLarge(Exception):

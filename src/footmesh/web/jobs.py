@@ -50,6 +50,13 @@ class Job:
     def out_dir(self) -> Path:
         return self.work_dir / "out"
 
+    def redact(self, message: str) -> str:
+        """``message`` with the server's paths of the uploads replaced by their form fields' names."""
+        for path, field in ((self.image, "photo"), (self.depth, "depth"), (self.intrinsics, "intrinsics")):
+            if path is not None:
+                message = message.replace(str(path), f"(upload field '{field}')")
+        return message.replace(str(self.work_dir), "(upload)")
+
 
 class JobError(Exception):
     """A measurement that gave no result: ``status`` is the HTTP status, ``str(exc)`` the user's message."""
@@ -218,6 +225,8 @@ class JobRunner:
         limit = s.time_limit_s + (KILL_GRACE_S if self._ctx is not None else 0.0)
         try:
             return await asyncio.wait_for(asyncio.shield(future), limit)
+        except BadInput as exc:
+            raise BadInput(job.redact(str(exc))) from None
         except TimeoutError:
             raise TimedOut(f"the measurement took longer than the limit of {s.time_limit_s:g} s") from None
 

@@ -136,8 +136,10 @@ def check_intrinsics(path: Path) -> CheckedFile:
         data = json.loads(path.read_bytes().decode("utf-8"), parse_constant=_no_constant)
     except UnicodeDecodeError:
         raise UploadError(400, f"the intrinsics file is not JSON; it looks like {describe(_head(path))}") from None
-    except ValueError as exc:  # JSONDecodeError, or NaN / Infinity
-        raise UploadError(400, f"the intrinsics file is not valid JSON: {exc}") from None
+    except ValueError as exc:  # JSONDecodeError, NaN / Infinity, an integer of more than 4,300 digits
+        raise UploadError(400, f"the intrinsics file is not valid JSON: {exc}"[:300]) from None
+    except RecursionError:
+        raise UploadError(400, "the intrinsics file is not valid JSON: nested too deeply") from None
     if not isinstance(data, dict):
         raise UploadError(400, f"the intrinsics file must hold a JSON object, got {type(data).__name__}")
     out = _rename(path, ".json")
@@ -160,10 +162,12 @@ def _check_image(
             message = f"the {what} starts like a {started[0]} file but could not be read (corrupt?)"
             raise UploadError(400, message) from None
         raise UploadError(415, f"the {what} must be {accepted}; this file looks like {describe(head)}") from None
-    except Image.DecompressionBombError as exc:
-        raise UploadError(413, f"the {what} has too many pixels: {exc}") from None
+    except Image.DecompressionBombError:
+        limit = 2 * Image.MAX_IMAGE_PIXELS / 1e6
+        raise UploadError(413, f"the {what} has more than {limit:.4g} MP; downscale it") from None
     except (OSError, SyntaxError, ValueError) as exc:
-        raise UploadError(400, f"the {what} could not be read (corrupt file?): {exc}") from None
+        reason = str(exc).replace(str(path), f"the {what}")  # never a server path
+        raise UploadError(400, f"the {what} could not be read (corrupt file?): {reason}") from None
     with img:
         kind = img.format
         width, height = img.size
