@@ -61,7 +61,8 @@ def make_client(tmp_path) -> Iterator[Callable]:
 
     def make(measure=None, **settings):
         settings = {"isolation": "thread", "work_dir": tmp_path, **settings}
-        client = TestClient(create_app(measure or FakeMeasure(), WebSettings(**settings)))
+        # a host the server answers to by default (WebSettings.allowed_hosts), as a browser on this machine sends
+        client = TestClient(create_app(measure or FakeMeasure(), WebSettings(**settings)), base_url="http://localhost")
         client.__enter__()
         clients.append(client)
         return client

@@ -204,6 +204,21 @@ def _refuse_naming_the_files(image, out_dir, *, depth=None, intrinsics=None, **o
     raise ValueError(f"image {image} is only 1 x 1 px; depth map {depth}; in {Path(image).parent}")
 
 
+def test_only_the_hosts_served_are_answered_and_cross_site_posts_are_refused(make_client, demo_photo):
+    client = make_client()  # the default: this machine's names only
+    assert client.get("/", headers={"Host": "evil.example"}).status_code == 400  # DNS rebinding
+    assert client.get("/api/health", headers={"Host": "127.0.0.1:8000"}).status_code == 200
+    assert client.get("/api/health", headers={"Host": "[::1]:8000"}).status_code == 200
+    local = {"Host": "localhost:8000"}
+    photo = {"photo": ("f.jpg", demo_photo, "image/jpeg")}
+    forged = client.post(MEASURE, files=photo, headers={**local, "Origin": "https://evil.example"})
+    assert forged.status_code == 403 and "other sites" in forged.json()["detail"]
+    assert client.post(MEASURE, files=photo, headers={**local, "Sec-Fetch-Site": "cross-site"}).status_code == 403
+    same = client.post(MEASURE, files=photo, headers={**local, "Origin": "http://localhost:8000"})
+    assert same.status_code == 200  # the page's own form
+    assert client.post(MEASURE, files=photo, headers=local).status_code == 200  # curl sends no Origin
+
+
 def test_refusals_name_the_upload_fields_never_server_paths(make_client, demo_photo, tmp_path):
     client = make_client(_refuse_naming_the_files)
     depth = png_bytes(np.full((320, 320), 600, np.uint16))
@@ -329,7 +344,8 @@ def test_temporary_folders_removed_at_shutdown(demo_photo, tmp_path):
     from footmesh.web.app import create_app
     from footmesh.web.settings import WebSettings
 
-    with TestClient(create_app(FakeMeasure(), WebSettings(isolation="thread", work_dir=tmp_path))) as client:
+    app = create_app(FakeMeasure(), WebSettings(isolation="thread", work_dir=tmp_path))
+    with TestClient(app, base_url="http://localhost") as client:
         assert post_photo(client, demo_photo).status_code == 200
         assert list(tmp_path.glob("footmesh-results-*/*"))
     assert list(tmp_path.iterdir()) == []

@@ -181,6 +181,9 @@ def test_serve_command_arguments():
     settings = settings_from_args(args)
     assert (args.host, args.port) == ("127.0.0.1", 8123)
     assert (settings.workers, settings.max_upload_bytes, settings.time_limit_s) == (2, 5 * 2**20, 9.0)
+    assert settings.allowed_hosts == ("127.0.0.1", "localhost", "::1")  # this machine only, by default
+    named = settings_from_args(parser.parse_args(["serve", "--host", "192.168.1.5", "--allowed-host", "feet.example"]))
+    assert named.allowed_hosts[-2:] == ("192.168.1.5", "feet.example")
     with pytest.raises(UserError, match="port"):
         run_serve(parser.parse_args(["serve", "--port", "0"]))
     with pytest.raises(ValueError, match="workers"):

@@ -21,6 +21,7 @@ from collections.abc import AsyncIterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated, Literal
+from urllib.parse import urlsplit
 
 from fastapi import FastAPI, File, Form, HTTPException, Request, UploadFile
 from fastapi.encoders import jsonable_encoder
@@ -121,6 +122,7 @@ def create_app(measure: MeasureFn | None = None, settings: WebSettings | None = 
         redoc_url=None,
     )
     app.add_middleware(BodyLimit, max_bytes=settings.max_upload_bytes, paths=(MEASURE_PATH,))
+    app.add_middleware(HostGuard, allowed_hosts=settings.allowed_hosts)
     app.add_middleware(SecurityHeaders)
     app.mount("/static", StaticFiles(directory=STATIC_DIR), name="static")
     templates = Jinja2Templates(directory=TEMPLATE_DIR)
@@ -358,6 +360,58 @@ class BodyLimit:
         headers = [(b"content-type", b"application/json"), (b"content-length", str(len(body)).encode())]
         await send({"type": "http.response.start", "status": 413, "headers": headers + [(b"connection", b"close")]})
         await send({"type": "http.response.body", "body": body})
+
+
+def host_name(value: str) -> str | None:
+    """The host of a ``Host`` header or an ``Origin`` URL's authority, lower case, without port or IPv6 brackets."""
+    try:
+        return urlsplit(f"//{value}").hostname
+    except ValueError:
+        return None
+
+
+class HostGuard:
+    """ASGI middleware: answer only requests whose ``Host`` is one of ``allowed_hosts`` (400 otherwise: DNS
+    rebinding), and refuse state-changing requests sent by a page of another origin (403: CSRF).
+
+    Written here because Starlette's TrustedHostMiddleware splits IPv6 hosts at their first colon and does not
+    look at ``Origin``.
+    """
+
+    def __init__(self, app: ASGIApp, allowed_hosts: tuple[str, ...]) -> None:
+        self.app = app
+        self.any_host = "*" in allowed_hosts
+        self.allowed = set(allowed_hosts)
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        if scope["type"] != "http":
+            await self.app(scope, receive, send)
+            return
+        headers = {k.decode("latin-1"): v.decode("latin-1") for k, v in scope.get("headers") or ()}
+        host = host_name(headers.get("host", ""))
+        if not self.any_host and host not in self.allowed:
+            await _plain_error(send, 400, "this server does not answer for that host name")
+            return
+        if scope["method"] not in ("GET", "HEAD", "OPTIONS"):
+            origin = headers.get("origin")
+            cross_site = headers.get("sec-fetch-site") == "cross-site"
+            if cross_site or (origin is not None and host_name(urlsplit(origin).netloc) != host):
+                await _plain_error(send, 403, "requests from pages of other sites are refused")
+                return
+        await self.app(scope, receive, send)
+
+
+async def _plain_error(send: Send, status: int, detail: str) -> None:
+    """A JSON error answered by a middleware, before the app sees the request."""
+    body = json.dumps({"detail": detail}).encode()
+    headers = [
+        (b"content-type", b"application/json"),
+        (b"content-length", str(len(body)).encode()),
+        (b"x-content-type-options", b"nosniff"),
+        (b"referrer-policy", b"no-referrer"),
+    ]
+    await send({"type": "http.response.start", "status": status, "headers": headers})
+    await send({"type": "http.response.body", "body": body})
 
 
 class SecurityHeaders:

@@ -4,7 +4,9 @@ from __future__ import annotations
 
 import argparse
 
-from footmesh.web.settings import WebSettings
+from footmesh.web.settings import LOCAL_HOSTS, WebSettings
+
+ANY_ADDRESS = ("0.0.0.0", "::", "")
 
 
 def add_serve_command(sub: argparse._SubParsersAction) -> None:
@@ -24,12 +26,21 @@ def add_serve_command(sub: argparse._SubParsersAction) -> None:
     serve.add_argument(
         "--max-megapixels", type=float, default=d.max_pixels / 1e6, help="largest photo in megapixels (default 50)"
     )
+    serve.add_argument(
+        "--allowed-host",
+        action="append",
+        default=[],
+        metavar="NAME",
+        help="a host name clients use to reach the server (repeatable; default: this machine's names and --host)",
+    )
     serve.set_defaults(func=run_serve)
 
 
 def settings_from_args(args: argparse.Namespace) -> WebSettings:
     """``WebSettings`` from the ``serve`` arguments (ValueError for impossible limits)."""
+    named = [] if args.host in ANY_ADDRESS or args.host in LOCAL_HOSTS else [args.host]
     return WebSettings(
+        allowed_hosts=LOCAL_HOSTS + tuple(named) + tuple(args.allowed_host),
         workers=args.workers,
         queue=args.queue,
         time_limit_s=args.time_limit,

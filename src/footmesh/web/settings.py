@@ -8,6 +8,9 @@ from typing import Literal
 
 Isolation = Literal["process", "thread"]
 
+LOCAL_HOSTS = ("127.0.0.1", "localhost", "::1")
+"""The names of this machine, which the server answers to by default."""
+
 
 @dataclass(frozen=True)
 class WebSettings:
@@ -30,6 +33,9 @@ class WebSettings:
         work_dir: parent of the server's temporary folders (uploads, results); None: the system's temp folder.
         preload: modules the forkserver imports once, besides the measure function's own, so that each job
             starts in milliseconds instead of importing torch (process isolation).
+        allowed_hosts: the names this server answers to in the ``Host`` header (others get 400: a web page
+            elsewhere cannot reach it by DNS rebinding); a form post whose ``Origin`` is another host gets 403
+            (cross-site request forgery). ``"*"`` answers any host.
     """
 
     max_upload_bytes: int = 30 * 1024 * 1024
@@ -44,6 +50,7 @@ class WebSettings:
     isolation: Isolation = "process"
     work_dir: Path | None = None
     preload: tuple[str, ...] = ("footmesh.model.layer", "footmesh.measure", "footmesh.report", "trimesh", "PIL.Image")
+    allowed_hosts: tuple[str, ...] = LOCAL_HOSTS
 
     def __post_init__(self) -> None:
         positive = {
@@ -64,5 +71,9 @@ class WebSettings:
         if self.isolation not in ("process", "thread"):
             raise ValueError(f"WebSettings.isolation must be 'process' or 'thread', got {self.isolation!r}")
         object.__setattr__(self, "preload", tuple(str(m) for m in self.preload))
+        hosts = tuple(str(h).strip().lower().strip("[]") for h in self.allowed_hosts)
+        if not hosts or not all(hosts):
+            raise ValueError(f"WebSettings.allowed_hosts must name at least one host, got {self.allowed_hosts!r}")
+        object.__setattr__(self, "allowed_hosts", hosts)
         if self.work_dir is not None:
             object.__setattr__(self, "work_dir", Path(self.work_dir))
