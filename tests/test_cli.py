@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -49,3 +50,21 @@ def test_eval_real_on_a_folder_that_is_no_set_is_one_line_and_exit_2(tmp_path, c
     assert main(["eval", "real", "--set", str(tmp_path), "--no-progress"]) == 2
     err = capsys.readouterr().err.strip()
     assert "no labels.json" in err and len(err.splitlines()) == 1
+
+
+@pytest.mark.parametrize(
+    "failure",
+    [TypeError("'NoneType' object is not subscriptable"), np.linalg.LinAlgError("SVD did not converge")],
+)
+def test_an_internal_failure_is_one_line_exit_1_and_a_log_file(monkeypatch, capsys, failure):
+    def broken(args):
+        raise failure
+
+    monkeypatch.setattr("footmesh.batch.measure_batch", lambda *a, **k: broken(None))
+    assert main(["measure", "photo.jpg"]) == 1
+    err = capsys.readouterr().err
+    assert err.startswith("footmesh: internal error (a fault of footmesh, not of your input)")
+    assert "Traceback" not in err and len(err.strip().splitlines()) == 1
+    log = Path(err.rsplit("details in ", 1)[1].strip())
+    assert type(failure).__name__ in log.read_text() and "Traceback" in log.read_text()
+    log.unlink()

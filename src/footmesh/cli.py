@@ -500,8 +500,35 @@ def main(argv: list[str] | None = None) -> int:
     try:
         return int(args.func(args) or 0)
     except (UserError, FileNotFoundError, ValueError) as exc:
+        if is_internal(exc):
+            return _internal_error(exc)
         print(f"footmesh: error: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print("footmesh: interrupted", file=sys.stderr)
         return 130
+    except Exception as exc:
+        return _internal_error(exc)
+
+
+def is_internal(exc: BaseException) -> bool:
+    """A ValueError that is our failure, not the input's: linear algebra that did not converge, a bad shape..."""
+    import numpy as np
+
+    return isinstance(exc, np.linalg.LinAlgError) or type(exc).__module__.startswith(("torch", "scipy"))
+
+
+def _internal_error(exc: BaseException) -> int:
+    """Report a failure of footmesh itself in one line, the traceback in a log file; exit code 1."""
+    import tempfile
+    import traceback
+
+    with tempfile.NamedTemporaryFile("w", prefix="footmesh-internal-", suffix=".log", delete=False) as f:
+        f.write(f"footmesh {__version__}: {' '.join(sys.argv)}\n")
+        f.write("".join(traceback.format_exception(exc)))
+    summary = f"{type(exc).__name__}: {exc}".splitlines()[0][:200] if str(exc) else type(exc).__name__
+    print(
+        f"footmesh: internal error (a fault of footmesh, not of your input): {summary}; details in {f.name}",
+        file=sys.stderr,
+    )
+    return 1

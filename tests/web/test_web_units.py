@@ -188,3 +188,11 @@ def test_serve_command_arguments():
         run_serve(parser.parse_args(["serve", "--port", "0"]))
     with pytest.raises(ValueError, match="workers"):
         run_serve(parser.parse_args(["serve", "--workers", "0"]))
+
+
+def test_a_linear_algebra_failure_is_internal_not_the_users_input():
+    from footmesh.web.jobs import _classify
+
+    assert _classify(ValueError("no foot found in the photo"))[0] == "input"
+    kind, message = _classify(np.linalg.LinAlgError("SVD did not converge"))
+    assert kind == "crash" and "Traceback" in message  # 500 and the server log, never a 422 blaming the photo

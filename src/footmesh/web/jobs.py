@@ -106,11 +106,11 @@ def _call(measure: MeasureFn, job: Job) -> dict:
 
 def _classify(exc: BaseException) -> tuple[str, str]:
     """("input" | "missing" | "crash", message) for an exception raised by the measure function."""
-    from footmesh.cli import UserError
+    from footmesh.cli import UserError, is_internal
 
     if isinstance(exc, PipelineMissing):
         return "missing", str(exc)
-    if isinstance(exc, UserError | ValueError):
+    if isinstance(exc, UserError | ValueError) and not is_internal(exc):
         return "input", str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
     return "crash", "".join(traceback.format_exception(exc))
 
