@@ -6,9 +6,9 @@ photos with our generator (farther views, the other foot beside the first, views
 from every training and test seed) and prints the mean IoU, precision and recall of the silhouette (>= 0.5)
 with the rendered foot mask per side, beside the side the pipeline uses.
 
-Measured for the pretrained RGB network (docs/cues.md): on renders a larger side helps (IoU 0.70 at 128 px, 0.81
-at 256), on the real photos of ``footmesh eval real`` it does not (0.43 at 128, 0.39 at 256: more of the shins
-taken for foot), so the pipeline keeps the side the network was trained at.
+Measured (docs/cues.md): on renders a larger side helps the pretrained RGB network (shipped: IoU 0.72 at 128 px,
+0.82 at 256); on the real photos of ``footmesh eval real`` it did not (its first training run: 0.43 at 128, 0.39
+at 256, more of the shins taken for foot), so the pipeline keeps the side the network was trained at.
 
 Run: ``python benchmarks/bench_first_pass.py [--weights W] [--photos N]`` (or ``python -m benchmarks
 bench_first_pass``).

@@ -54,6 +54,7 @@ def test_a_rendered_set_with_its_true_masks_scores_high(tmp_path):
     assert scores[0].iou > 0.7
     assert scores[1].iou < scores[0].iou - 0.3
     assert len(scores[0].crop_ious) == 1 and scores[0].crop_ious[0] > 0.7  # the crop the fit sees, on the foot
+    assert scores[0].predicted_sides == scores[0].feet  # the shipped RGB network's left/right head
     assert cv2.imread(str(sheet)).shape[:2] == (240, 480)
     table = format_table("renders", summarise(scores))
     assert "2 photos, 2 feet" in table and "mean silhouette IoU" in table and "on the crop" in table
