@@ -278,7 +278,9 @@ class MeasureConfig:
     cues_side_confidence: float = 0.95
     """With ``--side auto``, the side is the 2D-cues network's (networks with a left/right head) when its probability
     of a right foot is at least this or at most 1 minus this; only that side is then fitted. Below it, the decoder
-    or the fit of both sides decides as before."""
+    or the fit of both sides decides as before. Measured with the shipped RGB network (crops around hand-drawn feet
+    of ``../shared/real/rafiansyah``): 52 % of real feet pass 0.95, and 96 % of those have the right side (80.5 % of
+    all feet); on the synthetic test split 98 % of all sides are right."""
     min_depth_contour_followed: float = 0.85
     """With a depth map, refuse the photo when less of the foot's outline than this lies within 2 px of the fitted
     model's (``FootFit.quality["contour_within_2px"]``). Guided photos, seeds 4242 (60) and 777 (20), RGB-D and
