@@ -273,6 +273,7 @@ def test_queue_then_503_beyond_capacity(make_client, demo_photo):
     refused = post_photo(client, demo_photo)
     assert refused.status_code == 503
     assert "busy" in refused.json()["detail"] and int(refused.headers["Retry-After"]) > 0
+    assert "queue place taken" in refused.json()["detail"]  # by the middleware, before the upload was read
     gate.set()
     for t in threads:
         t.join(20.0)

@@ -307,7 +307,8 @@ class _TooLarge(Exception):
 
 
 class BodyLimit:
-    """ASGI middleware: refuse request bodies over ``max_bytes`` on ``paths`` with 413, counting as they arrive.
+    """ASGI middleware: refuse request bodies over ``max_bytes`` on ``paths`` with 413, counting as they arrive,
+    and with 503 before reading any when the job queue is full.
 
     A declared Content-Length over the limit is refused before anything is read; a body that turns out larger
     (chunked, or a lying header) stops being read at the limit and the app's answer is replaced by the 413.
@@ -325,6 +326,11 @@ class BodyLimit:
         declared = dict(scope.get("headers") or ()).get(b"content-length")
         if declared is not None and declared.isdigit() and int(declared) > self.max_bytes:
             await self._refuse(send)
+            return
+        web = getattr(scope["app"].state, "web", None)
+        if web is not None and web.runner.full:  # refused before the upload is read and decoded
+            detail = "the server is busy (every worker and queue place taken); try again soon"
+            await _plain_error(send, 503, detail, [(b"retry-after", str(RETRY_AFTER_S).encode())])
             return
         received = 0
         exceeded = False
@@ -401,10 +407,10 @@ class HostGuard:
         await self.app(scope, receive, send)
 
 
-async def _plain_error(send: Send, status: int, detail: str) -> None:
-    """A JSON error answered by a middleware, before the app sees the request."""
+async def _plain_error(send: Send, status: int, detail: str, extra: list | None = None) -> None:
+    """A JSON error answered by a middleware, before the app sees the request (``extra``: more headers)."""
     body = json.dumps({"detail": detail}).encode()
-    headers = [
+    headers = (extra or []) + [
         (b"content-type", b"application/json"),
         (b"content-length", str(len(body)).encode()),
         (b"x-content-type-options", b"nosniff"),

@@ -195,6 +195,11 @@ class JobRunner:
     def queued(self) -> int:
         return self._admitted - self._running
 
+    @property
+    def full(self) -> bool:
+        """No room for another measurement: ``workers`` running and ``queue`` waiting."""
+        return self._admitted >= self.settings.workers + self.settings.queue
+
     async def run(self, job: Job) -> tuple[str, dict]:
         """Measure ``job``; returns (result id in the store, result dict). Always deletes ``job.work_dir``.
 
@@ -205,7 +210,7 @@ class JobRunner:
             PipelineMissing, Crashed: no pipeline, or it failed (details in the server log).
         """
         s = self.settings
-        if self._admitted >= s.workers + s.queue:
+        if self.full:
             _remove(job.work_dir)
             raise Busy(f"the server is busy ({self._admitted} measurements in progress or waiting); try again soon")
         self._admitted += 1
