@@ -512,10 +512,10 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def is_internal(exc: BaseException) -> bool:
-    """A ValueError that is our failure, not the input's: linear algebra that did not converge, a bad shape..."""
+    """A ValueError that is our failure, not the input's: linear algebra that did not converge."""
     import numpy as np
 
-    return isinstance(exc, np.linalg.LinAlgError) or type(exc).__module__.startswith(("torch", "scipy"))
+    return isinstance(exc, np.linalg.LinAlgError)
 
 
 def _internal_error(exc: BaseException) -> int:

@@ -214,6 +214,8 @@ def test_only_the_hosts_served_are_answered_and_cross_site_posts_are_refused(mak
     forged = client.post(MEASURE, files=photo, headers={**local, "Origin": "https://evil.example"})
     assert forged.status_code == 403 and "other sites" in forged.json()["detail"]
     assert client.post(MEASURE, files=photo, headers={**local, "Sec-Fetch-Site": "cross-site"}).status_code == 403
+    assert client.post(MEASURE, files=photo, headers={**local, "Origin": "http://[bad"}).status_code == 403
+    assert client.post(MEASURE, files=photo, headers={**local, "Origin": "null"}).status_code == 403
     same = client.post(MEASURE, files=photo, headers={**local, "Origin": "http://localhost:8000"})
     assert same.status_code == 200  # the page's own form
     assert client.post(MEASURE, files=photo, headers=local).status_code == 200  # curl sends no Origin

@@ -369,9 +369,10 @@ class BodyLimit:
 
 
 def host_name(value: str) -> str | None:
-    """The host of a ``Host`` header or an ``Origin`` URL's authority, lower case, without port or IPv6 brackets."""
+    """The host of a ``Host`` header, or of an ``Origin`` URL (``scheme://host[:port]``), lower case, without port
+    or IPv6 brackets; None when it is malformed."""
     try:
-        return urlsplit(f"//{value}").hostname
+        return urlsplit(value if "://" in value else f"//{value}").hostname
     except ValueError:
         return None
 
@@ -401,7 +402,7 @@ class HostGuard:
         if scope["method"] not in ("GET", "HEAD", "OPTIONS"):
             origin = headers.get("origin")
             cross_site = headers.get("sec-fetch-site") == "cross-site"
-            if cross_site or (origin is not None and host_name(urlsplit(origin).netloc) != host):
+            if cross_site or (origin is not None and host_name(origin) != host):
                 await _plain_error(send, 403, "requests from pages of other sites are refused")
                 return
         await self.app(scope, receive, send)
