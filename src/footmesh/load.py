@@ -571,7 +571,7 @@ def _json_float(text: str) -> float | object:
 
 def _json_number(role: str, path: Path, key: str, value: Any) -> float:
     if value is _UNUSABLE_NUMBER:
-        raise LoadError(f"{role} {path}: {key!r} is not a usable number (too many digits)")
+        raise LoadError(f"{role} {path}: {key!r} is not a usable number (too many digits, or too large for a float)")
     if isinstance(value, bool) or not isinstance(value, int | float):
         raise LoadError(f"{role} {path}: {key!r} must be a number, got {json.dumps(value)}")
     if not math.isfinite(value):
