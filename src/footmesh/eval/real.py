@@ -133,8 +133,7 @@ def crop_scores(
         crop = crop_around(xs.min(), ys.min(), xs.max() - xs.min() + 1, ys.max() - ys.min() + 1, fill)
         cues = predict_cues("rgb", crop.cut(rgb), weights=weights)
         truth = crop.cut(mask, fill=0) > 0
-        predicted = cv2.resize(cues.silhouette, truth.shape[::-1], interpolation=cv2.INTER_LINEAR) >= 0.5
-        ious.append(mask_scores(predicted, truth)[0])
+        ious.append(mask_scores(cues.silhouette >= 0.5, truth)[0])  # predict_cues answers in the crop's pixels
         if cues.right_probability is not None:
             sides.append("right" if cues.right_probability >= 0.5 else "left")
     return tuple(sides) if len(sides) == len(feet) else (), tuple(ious)

@@ -361,11 +361,8 @@ class BodyLimit:
             await self._refuse(send)
 
     async def _refuse(self, send: Send) -> None:
-        limit = uploads.format_bytes(self.max_bytes)
-        body = json.dumps({"detail": f"the upload is larger than the limit of {limit}"}).encode()
-        headers = [(b"content-type", b"application/json"), (b"content-length", str(len(body)).encode())]
-        await send({"type": "http.response.start", "status": 413, "headers": headers + [(b"connection", b"close")]})
-        await send({"type": "http.response.body", "body": body})
+        detail = f"the upload is larger than the limit of {uploads.format_bytes(self.max_bytes)}"
+        await _plain_error(send, 413, detail, [(b"connection", b"close")])
 
 
 def host_name(value: str) -> str | None:
@@ -409,14 +406,10 @@ class HostGuard:
 
 
 async def _plain_error(send: Send, status: int, detail: str, extra: list | None = None) -> None:
-    """A JSON error answered by a middleware, before the app sees the request (``extra``: more headers)."""
+    """A JSON error answered by a middleware, before the app sees the request (``extra``: more headers; the
+    security headers come from ``SecurityHeaders``, outside every other middleware)."""
     body = json.dumps({"detail": detail}).encode()
-    headers = (extra or []) + [
-        (b"content-type", b"application/json"),
-        (b"content-length", str(len(body)).encode()),
-        (b"x-content-type-options", b"nosniff"),
-        (b"referrer-policy", b"no-referrer"),
-    ]
+    headers = [(b"content-type", b"application/json"), (b"content-length", str(len(body)).encode())] + (extra or [])
     await send({"type": "http.response.start", "status": status, "headers": headers})
     await send({"type": "http.response.body", "body": body})
 
