@@ -61,7 +61,7 @@ def check_output(out: str | Path) -> Path:
     return path
 
 
-def _wanted(image: str, depth: str | None, intrinsics: str | None, request: dict[str, str]) -> dict | None:
+def _wanted(image: str, depth: str | None, intrinsics: str | None, request: dict[str, str | bool]) -> dict | None:
     """What a result must record to be this measurement: the inputs' SHA-256, the options, the version (None
     when an input cannot be read: it is measured, and fails with its own message)."""
     hashes = {"image": _sha256(image)}
@@ -96,6 +96,7 @@ def measure_batch(
     intrinsics: Sequence[str] | None = None,
     side: str = "auto",
     print_json: bool = False,
+    embedded_depth: bool = True,
 ) -> int:
     """Measure every photo (skipping those already measured into their folder); returns the exit code."""
     folders = output_folders(images, check_output(out))
@@ -105,13 +106,21 @@ def measure_batch(
         if intrinsics:
             k = intrinsics[0] if len(intrinsics) == 1 else intrinsics[i]
         depth = depths[i] if depths else None
-        previous = _done(folder, _wanted(image, depth, k, request_options(side, depth_unit, "auto")))
+        previous = _done(folder, _wanted(image, depth, k, request_options(side, depth_unit, "auto", embedded_depth)))
         if previous is not None:
             log.info("%s: already measured in %s (delete it to measure again)", image, folder)
             results.append((image, previous, None))
             continue
         try:
-            result = measure_photo(image, folder, depth=depth, depth_unit=depth_unit, intrinsics=k, side=side)
+            result = measure_photo(
+                image,
+                folder,
+                depth=depth,
+                depth_unit=depth_unit,
+                intrinsics=k,
+                side=side,
+                embedded_depth=embedded_depth,
+            )
             results.append((image, result, None))
             log.info("%s: %s", image, _one_line(result))
         except (PipelineError, LoadError, FileNotFoundError, ValueError) as exc:

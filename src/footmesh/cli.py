@@ -43,8 +43,15 @@ def _add_measure_command(sub: argparse._SubParsersAction) -> None:
         "overlay.png per photo (docs/measure.md). Millimetres come only from a depth map or a reference object "
         "(A4 sheet, bank card, printed marker) in the photo; otherwise the result is unscaled.",
     )
-    m.add_argument("images", nargs="+", metavar="IMAGE", help="photo(s): JPEG, PNG, ... (EXIF orientation honoured)")
+    m.add_argument(
+        "images", nargs="+", metavar="IMAGE", help="photo(s): JPEG, HEIC, PNG, ... (EXIF orientation honoured)"
+    )
     m.add_argument("--depth", action="append", help="depth map per photo (16-bit PNG in mm, or .npy); repeatable")
+    m.add_argument(
+        "--no-embedded-depth",
+        action="store_true",
+        help="ignore a depth map stored inside the photo (iPhone HEIC, Android depth JPEG); measure it as RGB",
+    )
     m.add_argument("--depth-unit", choices=("mm", "m"), default="mm", help="unit of float .npy depth (default mm)")
     m.add_argument("--intrinsics", action="append", help="K.json per photo (or one for all): fx, fy, cx, cy, ...")
     m.add_argument("--side", choices=("left", "right", "auto"), default="auto", help="which foot (default auto)")
@@ -71,6 +78,7 @@ def _run_measure(args: argparse.Namespace) -> int:
         intrinsics=intrinsics or None,
         side=args.side,
         print_json=args.json,
+        embedded_depth=not args.no_embedded_depth,
     )
 
 

@@ -3,9 +3,12 @@
 Accepted inputs, limits and error messages: docs/load.md. In short:
 
 - the image is identified by its content (never its name), decoded in full (a truncated file is an error, not a
-  grey band), turned upright by its EXIF orientation and converted to ``(H, W, 3) uint8`` RGB;
+  grey band), turned upright by its EXIF orientation and converted to ``(H, W, 3) uint8`` RGB; HEIC/HEIF is read
+  through pillow-heif (``footmesh.formats.heif``);
 - the depth map (16-bit PNG/TIFF in mm, or ``.npy``) must be aligned pixel for pixel with the *upright* image and
-  becomes ``(H, W) float32`` mm with 0 = missing; its unit is declared and checked, never guessed;
+  becomes ``(H, W) float32`` mm with 0 = missing; its unit is declared and checked, never guessed. Without one, a
+  metric depth map embedded in the photo (an iPhone HEIC's depth image, an Android depth JPEG) is used instead
+  (``footmesh.formats``); a relative one is not, and ``ImageInfo.notes`` says why;
 - the intrinsics come from a JSON file, else from EXIF ``FocalLengthIn35mmFilm``, else from a documented default
   (a 26 mm-equivalent phone main camera); ``Intrinsics.source`` says which.
 
@@ -30,6 +33,9 @@ from typing import Any, Literal
 
 import numpy as np
 from PIL import Image, ImageOps, UnidentifiedImageError
+
+from footmesh.formats import heif
+from footmesh.formats.embedded import DepthSource, align_depth
 
 log = logging.getLogger(__name__)
 
@@ -68,7 +74,6 @@ _TAG_FOCAL_35MM = 0xA405
 _NPY_MAGIC = b"\x93NUMPY"
 _ZIP_MAGIC = b"PK\x03\x04"
 _EXR_MAGIC = b"\x76\x2f\x31\x01"
-_HEIF_BRANDS = (b"heic", b"heix", b"hevc", b"hevx", b"heim", b"heis", b"mif1", b"msf1")
 _SIXTEEN_BIT_MODES = ("I;16", "I;16L", "I;16B", "I;16N")
 _ALPHA_MODES = ("RGBA", "RGBa", "LA", "La", "PA")
 
@@ -184,6 +189,7 @@ class Photo:
     intrinsics: Intrinsics  # in pixels of ``rgb``
     info: ImageInfo
     input_sha256: dict[str, str]  # {"image": ..., "depth": ..., "intrinsics": ...}, only the inputs given
+    depth_source: DepthSource | None = None  # where ``depth_mm`` came from (a file, or the photo's own depth map)
 
     @property
     def path(self) -> Path:
@@ -252,14 +258,14 @@ def sha256_hex(data: bytes) -> str:
 
 def _not_readable(role: str, path: Path, data: bytes) -> LoadError:
     """The error for bytes Pillow does not recognise, saying what they look like when that is known."""
-    if data[4:8] == b"ftyp" and data[8:12] in _HEIF_BRANDS:
+    if data[4:8] == b"ftyp":
         return LoadError(
-            f"{role} {path} is a HEIC/HEIF photo, which cannot be read here; export it as JPEG "
-            "(on an iPhone: Settings > Camera > Formats > Most Compatible)"
+            f"{role} {path} is an ISO media file of brand {data[8:12]!r} (a video or an unsupported image), "
+            "not a photo that can be read; accepted: JPEG, PNG, WebP, TIFF, BMP, GIF, AVIF, HEIC/HEIF"
         )
     return LoadError(
         f"{role} {path} is not an image that can be read (its first bytes are {data[:12]!r}); "
-        "accepted: JPEG, PNG, WebP, TIFF, BMP, GIF, AVIF"
+        "accepted: JPEG, PNG, WebP, TIFF, BMP, GIF, AVIF, HEIC/HEIF"
     )
 
 
@@ -271,8 +277,15 @@ def _too_many_pixels(role: str, path: Path, max_pixels: int) -> LoadError:
     )
 
 
+def _one_line(exc: BaseException) -> str:
+    """``Type: message`` of a decoder's exception on one line (libheif's messages span several)."""
+    return f"{type(exc).__name__}: {' '.join(str(exc).split())}"[:300]
+
+
 def _open_image(data: bytes, path: Path, role: str, max_pixels: int) -> Image.Image:
     """Open and fully decode ``data`` (a truncated file fails here, not later), refusing more than ``max_pixels``."""
+    if heif.is_heif(data):
+        heif.register()
     with warnings.catch_warnings():
         # we apply our own pixel limit; Pillow's hard limit (2 x Image.MAX_IMAGE_PIXELS) still raises
         warnings.simplefilter("ignore", Image.DecompressionBombWarning)
@@ -284,7 +297,7 @@ def _open_image(data: bytes, path: Path, role: str, max_pixels: int) -> Image.Im
             raise _not_readable(role, path, data) from exc
         except Exception as exc:  # Pillow's plugins raise many types for a broken header
             raise LoadError(
-                f"{role} {path} is truncated or corrupt (its header cannot be read: {type(exc).__name__}: {exc})"
+                f"{role} {path} is truncated or corrupt (its header cannot be read: {_one_line(exc)})"
             ) from exc
         w, h = im.size
         if w * h > max_pixels:
@@ -297,7 +310,7 @@ def _open_image(data: bytes, path: Path, role: str, max_pixels: int) -> Image.Im
         except Image.DecompressionBombError as exc:
             raise _too_many_pixels(role, path, max_pixels) from exc
         except Exception as exc:
-            raise LoadError(f"{role} {path} is truncated or corrupt ({type(exc).__name__}: {exc})") from exc
+            raise LoadError(f"{role} {path} is truncated or corrupt ({_one_line(exc)})") from exc
     return im
 
 
@@ -390,7 +403,13 @@ def _decode_photo(data: bytes, path: Path, max_pixels: int) -> tuple[np.ndarray,
         ) from exc
     if frames > 1:
         notes.append(f"first of {frames} frames used")
-    if orientation != 1:
+    if fmt == "HEIF":
+        # libheif turned the pixels already (irot / imir) and reset the EXIF tag; pillow-heif keeps the original
+        orientation = im.info.get("original_orientation") or 1
+        if orientation not in range(1, 9):
+            notes.append(f"EXIF orientation {orientation!r} is not 1..8 and was ignored")
+            orientation = 1
+    elif orientation != 1:
         try:
             im = ImageOps.exif_transpose(im)
         except Exception as exc:
@@ -494,10 +513,7 @@ def _decode_depth(data: bytes, path: Path, unit: str, image_size: tuple[int, int
         valid = np.isfinite(values) & (values > 0)
     fraction = float(valid.mean())
     if fraction < MIN_VALID_DEPTH_FRACTION:
-        raise LoadError(
-            f"{role} {path} has only {100 * fraction:.2f} % valid pixels (finite and > 0); "
-            f"at least {100 * MIN_VALID_DEPTH_FRACTION:g} % are needed"
-        )
+        raise LoadError(f"{role} {path} {_too_few_valid(fraction)}")
     median_mm = float(np.median(values[valid]))
     lo, hi = DEPTH_RANGE_MM
     if not lo <= median_mm <= hi:
@@ -515,6 +531,64 @@ def _decode_depth(data: bytes, path: Path, unit: str, image_size: tuple[int, int
         )
     values[~valid] = 0.0
     return values
+
+
+def _too_few_valid(fraction: float) -> str:
+    return (
+        f"has only {100 * fraction:.2f} % valid pixels (finite and > 0); "
+        f"at least {100 * MIN_VALID_DEPTH_FRACTION:g} % are needed"
+    )
+
+
+# --- depth embedded in the photo --------------------------------------------------------------------------------
+
+
+def _android_depth(data: bytes) -> tuple[Any, list[str]]:
+    from footmesh.formats.android import read_android_depth
+
+    return read_android_depth(data)
+
+
+EMBEDDED_DEPTH_READERS = (
+    (heif.is_heif, heif.read_heif_depth),
+    (lambda data: data.startswith(b"\xff\xd8\xff"), _android_depth),
+)
+"""(recognises the file's bytes, reads its embedded depth -> (EmbeddedDepth | None, notes)) per container."""
+
+
+def _embedded_depth(
+    data: bytes, info: ImageInfo, k: Intrinsics
+) -> tuple[np.ndarray | None, DepthSource | None, list[str]]:
+    """(depth mm aligned with the upright photo, its source, notes) from a depth map inside the photo file."""
+    for recognises, read in EMBEDDED_DEPTH_READERS:
+        if recognises(data):
+            embedded, notes = read(data)
+            break
+    else:
+        return None, None, []
+    if embedded is None:
+        return None, None, notes
+    depth_mm, source, why = align_depth(embedded, info.orientation, info.size, k.fx, k.fy, k.cx, k.cy)
+    if depth_mm is not None:
+        valid = depth_mm > 0
+        fraction = float(valid.mean())
+        median_mm = float(np.median(depth_mm[valid])) if fraction else 0.0
+        lo, hi = DEPTH_RANGE_MM
+        if fraction < MIN_VALID_DEPTH_FRACTION:
+            why = f"it {_too_few_valid(fraction)}"
+        elif not lo <= median_mm <= hi:
+            why = f"its median depth of {median_mm:.4g} mm is outside the {lo:g}-{hi:g} mm of a foot photo"
+    if why is not None:
+        return None, None, [*notes, f"the depth map inside the photo was not used ({why}); measured as RGB"]
+    assert source is not None
+    note = (
+        f"depth from the photo's {source.container}: {source.representation.replace('_', ' ')}, "
+        f"{source.near_mm:g}-{source.far_mm:g} mm, {source.bits}-bit, {source.stored_size[0]} x "  # type: ignore[index]
+        f"{source.stored_size[1]} px"  # type: ignore[index]
+    )
+    if source.dropped_low_confidence:
+        note += f", {100 * source.dropped_low_confidence:.1f} % of it dropped for low confidence"
+    return depth_mm, source, [*notes, note]
 
 
 # --- intrinsics -----------------------------------------------------------------------------------------------
@@ -642,23 +716,29 @@ def load_photo(
     depth_unit: DepthUnit = "mm",
     intrinsics: str | os.PathLike | None = None,
     max_pixels: int = MAX_PIXELS,
+    embedded_depth: bool = True,
 ) -> Photo:
     """Load one photo with its optional depth map (``depth_unit`` "mm" or "m") and intrinsics file (K.json).
 
     Without ``intrinsics`` the camera comes from EXIF or the documented default (``default_intrinsics``).
+    Without ``depth``, a metric depth map stored inside the photo file is used unless ``embedded_depth`` is off.
     """
     image_path, image_bytes = _read_bytes(image, "image")
     rgb, info = _decode_photo(image_bytes, image_path, max_pixels)
     hashes = {"image": info.sha256}
-    depth_mm = None
-    if depth is not None:
-        depth_path, depth_bytes = _read_bytes(depth, "depth map")
-        depth_mm = _decode_depth(depth_bytes, depth_path, depth_unit, info.size, info.orientation != 1)
-        hashes["depth"] = sha256_hex(depth_bytes)
     if intrinsics is not None:
         k_path, k_bytes = _read_bytes(intrinsics, "intrinsics file")
         k = _decode_intrinsics(k_bytes, k_path, info.size, info.orientation != 1)
         hashes["intrinsics"] = sha256_hex(k_bytes)
     else:
         k = default_intrinsics(*info.size, info.focal_length_35mm)
-    return Photo(rgb=rgb, depth_mm=depth_mm, intrinsics=k, info=info, input_sha256=hashes)
+    depth_mm, depth_source = None, None
+    if depth is not None:
+        depth_path, depth_bytes = _read_bytes(depth, "depth map")
+        depth_mm = _decode_depth(depth_bytes, depth_path, depth_unit, info.size, info.orientation != 1)
+        depth_source = DepthSource("file", "depth map file", "millimetres")
+        hashes["depth"] = sha256_hex(depth_bytes)
+    elif embedded_depth:
+        depth_mm, depth_source, notes = _embedded_depth(image_bytes, info, k)
+        info = replace(info, notes=(*info.notes, *notes))
+    return Photo(rgb=rgb, depth_mm=depth_mm, intrinsics=k, info=info, input_sha256=hashes, depth_source=depth_source)

@@ -234,27 +234,29 @@ def measure_photo(
     side: str = "auto",
     input: str = "auto",
     config: MeasureConfig | None = None,
+    embedded_depth: bool = True,
 ) -> dict:
     """Measure the foot in one photo; write the result files into ``out_dir`` and return the result dict.
 
     ``input``: which networks to use: ``auto`` (RGB-D when a depth map is given, else RGB), or ``rgb``,
-    ``rgbd``, ``depth`` (the depth map alone; the photo only serves for the overlay).
+    ``rgbd``, ``depth`` (the depth map alone; the photo only serves for the overlay). ``embedded_depth``: use a
+    metric depth map stored inside the photo (iPhone HEIC, Android depth JPEG) when no ``depth`` is given.
     """
     config = config or MeasureConfig()
     if side not in ("left", "right", "auto"):
         raise PipelineError(f"side must be left, right or auto, got {side!r}")
     start = time.perf_counter()
-    photo = load_photo(image, depth=depth, depth_unit=depth_unit, intrinsics=intrinsics)
+    photo = load_photo(image, depth=depth, depth_unit=depth_unit, intrinsics=intrinsics, embedded_depth=embedded_depth)
     result, files = run_pipeline(photo, side, config, input)
-    result["request"] = request_options(side, depth_unit, input)
+    result["request"] = request_options(side, depth_unit, input, embedded_depth)
     result["seconds"] = round(time.perf_counter() - start, 3)
     write_outputs(Path(out_dir), result, files)
     return result
 
 
-def request_options(side: str, depth_unit: str, input: str) -> dict[str, str]:
+def request_options(side: str, depth_unit: str, input: str, embedded_depth: bool = True) -> dict[str, str | bool]:
     """The options of a measurement that change its result besides the input files (``result["request"]``)."""
-    return {"side": side, "depth_unit": depth_unit, "input": input}
+    return {"side": side, "depth_unit": depth_unit, "input": input, "embedded_depth": embedded_depth}
 
 
 @dataclass
@@ -423,6 +425,7 @@ def run_pipeline(photo: Photo, side: str, config: MeasureConfig, input: str = "a
         "input_sha256": dict(photo.input_sha256),
         "image": {"width": int(photo.rgb.shape[1]), "height": int(photo.rgb.shape[0])},
         "intrinsics": {**photo.intrinsics.to_dict()},
+        "depth": None if photo.depth_source is None or kind == "rgb" else photo.depth_source.to_dict(),
         "input": kind,
         "side": fit.side,
         "side_losses": {k: float(v) for k, v in fit.side_losses.items()},

@@ -163,14 +163,14 @@ def test_too_many_pixels_refused_before_decoding(make_client):
         (b"%PDF-1.7\n%\xe2\xe3\xcf\xd3\n1 0 obj\n<<>>\nendobj\n", "PDF"),
         (b"Hello, this is not a photo.\n", "text file"),
         (b"GIF89a\x01\x00\x01\x00\x00\x00\x00;", "GIF"),
-        (b"\x00\x00\x00\x18ftypheic\x00\x00\x00\x00mif1heic", "HEIC"),
+        (b"\x00\x00\x00\x18ftypmp42\x00\x00\x00\x00isommp42", "video"),
     ],
 )
 def test_non_image_refused(make_client, data, looks_like):
     response = post_photo(make_client(), data)  # named foot.jpg, declared image/jpeg: neither is trusted
     assert response.status_code == 415
     detail = response.json()["detail"]
-    assert "JPEG, PNG, WebP or TIFF" in detail and looks_like in detail
+    assert "JPEG, PNG, WebP, TIFF or HEIC" in detail and looks_like in detail
 
 
 def test_photo_without_a_foot(make_client, blank_photo, demo_photo):

@@ -9,6 +9,7 @@ import struct
 import time
 
 import numpy as np
+import pillow_heif
 import pytest
 from PIL import Image
 
@@ -23,12 +24,18 @@ def write(path, data: bytes):
 
 
 def image_bytes(fmt: str, size=(40, 30), mode="RGB") -> bytes:
+    if fmt == "HEIF":  # Pillow writes no HEIF itself
+        buffer = io.BytesIO()
+        pillow_heif.from_pillow(Image.new(mode, size, 90)).save(buffer, quality=90)
+        return buffer.getvalue()
     buffer = io.BytesIO()
     Image.new(mode, size, 90).save(buffer, format=fmt)
     return buffer.getvalue()
 
 
-@pytest.mark.parametrize(("fmt", "suffix"), [("JPEG", ".jpg"), ("PNG", ".png"), ("WEBP", ".webp"), ("TIFF", ".tiff")])
+@pytest.mark.parametrize(
+    ("fmt", "suffix"), [("JPEG", ".jpg"), ("PNG", ".png"), ("WEBP", ".webp"), ("TIFF", ".tiff"), ("HEIF", ".heic")]
+)
 def test_photo_formats_get_their_own_suffix(tmp_path, fmt, suffix):
     checked = uploads.check_photo(write(tmp_path / "photo.upload", image_bytes(fmt)), max_pixels=10_000)
     assert (checked.kind, checked.path.suffix, checked.width, checked.height) == (fmt, suffix, 40, 30)
@@ -45,6 +52,10 @@ def test_photo_refusals(tmp_path):
     png = image_bytes("PNG", (200, 100))
     with pytest.raises(uploads.UploadError, match="corrupt") as cut:
         uploads.check_photo(write(tmp_path / "c.upload", png[: len(png) - 30]), 100_000)
+    assert cut.value.status == 400
+    heic = image_bytes("HEIF", (200, 100))
+    with pytest.raises(uploads.UploadError, match="corrupt") as cut:
+        uploads.check_photo(write(tmp_path / "d.upload", heic[: len(heic) // 2]), 100_000)
     assert cut.value.status == 400
 
 

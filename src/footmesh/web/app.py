@@ -170,7 +170,7 @@ def create_app(measure: MeasureFn | None = None, settings: WebSettings | None = 
     )
     async def measure_endpoint(
         request: Request,
-        photo: Annotated[UploadFile, File(description="the photo: JPEG, PNG, WebP or TIFF")],
+        photo: Annotated[UploadFile, File(description="the photo: JPEG, HEIC, PNG, WebP or TIFF")],
         depth: Annotated[UploadFile | None, File(description="optional depth map: 16-bit PNG (mm), .npy, .exr")] = None,
         depth_unit: Annotated[Literal["mm", "m"], Form(description="unit of a .npy/.exr depth map")] = "mm",
         intrinsics: Annotated[UploadFile | None, File(description="optional camera intrinsics (JSON)")] = None,

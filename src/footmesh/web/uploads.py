@@ -18,7 +18,9 @@ from typing import BinaryIO
 import numpy as np
 from PIL import Image, UnidentifiedImageError
 
-PHOTO_FORMATS: dict[str, str] = {"JPEG": ".jpg", "PNG": ".png", "WEBP": ".webp", "TIFF": ".tiff"}
+from footmesh.formats import heif
+
+PHOTO_FORMATS: dict[str, str] = {"JPEG": ".jpg", "PNG": ".png", "WEBP": ".webp", "TIFF": ".tiff", "HEIF": ".heic"}
 """Accepted photo formats (Pillow's names) -> the suffix the saved file gets."""
 DEPTH_IMAGE_FORMATS: dict[str, str] = {"PNG": ".png", "TIFF": ".tiff"}
 """Depth maps as images (16-bit PNG in mm, or TIFF); ``.npy`` and OpenEXR are recognised separately."""
@@ -34,6 +36,7 @@ _IMAGE_MAGIC: dict[str, tuple[bytes, ...]] = {
     "WEBP": (b"RIFF",),
     "TIFF": (b"II*\x00", b"MM\x00*"),
 }
+PHOTO_KINDS = "a JPEG, PNG, WebP, TIFF or HEIC image"
 
 # What a rejected file looks like, to say so in the message (first bytes -> description).
 _SIGNATURES: tuple[tuple[int, bytes, str], ...] = (
@@ -41,10 +44,10 @@ _SIGNATURES: tuple[tuple[int, bytes, str], ...] = (
     (0, b"PK\x03\x04", "a ZIP archive or an office document"),
     (0, b"GIF8", "a GIF image"),
     (0, b"BM", "a BMP image"),
-    (4, b"ftypheic", "a HEIC photo (export it as JPEG)"),
-    (4, b"ftypheix", "a HEIC photo (export it as JPEG)"),
-    (4, b"ftypmif1", "a HEIF photo (export it as JPEG)"),
-    (4, b"ftypavif", "an AVIF image (export it as JPEG)"),
+    (4, b"ftypheic", "a HEIC photo"),
+    (4, b"ftypheix", "a HEIC photo"),
+    (4, b"ftypmif1", "a HEIF photo"),
+    (4, b"ftypavif", "an AVIF image (export it as JPEG or HEIC)"),
     (4, b"ftyp", "a video or MP4/MOV file"),
     (0, b"\x1f\x8b", "a gzip archive"),
 )
@@ -102,12 +105,14 @@ def save_upload(source: BinaryIO, dest: Path, max_bytes: int, what: str) -> Path
 
 
 def check_photo(path: Path, max_pixels: int) -> CheckedFile:
-    """Accept a JPEG, PNG, WebP or TIFF photo of at most ``max_pixels`` that decodes completely.
+    """Accept a JPEG, PNG, WebP, TIFF or HEIC/HEIF photo of at most ``max_pixels`` that decodes completely.
 
     Renames the file to the suffix of its real format. Raises ``UploadError`` 415 (not an accepted image),
     413 (too many pixels) or 400 (corrupt or truncated).
     """
-    kind, width, height = _check_image(path, PHOTO_FORMATS, max_pixels, "photo", "a JPEG, PNG, WebP or TIFF image")
+    if heif.is_heif(_head(path)):
+        heif.register()
+    kind, width, height = _check_image(path, PHOTO_FORMATS, max_pixels, "photo", PHOTO_KINDS)
     return CheckedFile(_rename(path, PHOTO_FORMATS[kind]), kind, width, height)
 
 
@@ -158,6 +163,7 @@ def _check_image(
     except UnidentifiedImageError:
         head = _head(path)
         started = [k for k in formats if any(head.startswith(m) for m in _IMAGE_MAGIC.get(k, ()))]
+        started += ["HEIF"] if "HEIF" in formats and heif.is_heif(head) else []
         if started and (started != ["WEBP"] or head[8:12] == b"WEBP"):
             message = f"the {what} starts like a {started[0]} file but could not be read (corrupt?)"
             raise UploadError(400, message) from None
