@@ -373,7 +373,6 @@ def test_intrinsics_taken_before_the_exif_rotation(tmp_path):
     ("changes", "expected"),
     [
         ({"fy": None}, "missing fy"),
-        ({"k1": 0.1}, "unknown 'k1'"),
         ({"fx": "80"}, "'fx' must be a number, got \"80\""),
         ({"width": True}, "'width' must be a number"),
         ({"fx": -80.0}, "'fx' must be positive"),
@@ -390,6 +389,19 @@ def test_bad_intrinsics_files(tmp_path, changes, expected):
     path = write_k(tmp_path, **changes)
     message = error(load_intrinsics, path, (W, H))
     assert expected in message and message.startswith(f"intrinsics file {path}")
+
+
+def test_a_calibration_file_with_extra_keys_and_lens_distortion_is_used(tmp_path):
+    image = tmp_path / "p.png"
+    Image.fromarray(quadrants()).save(image)
+    plain = load_photo(image)
+    photo = load_photo(image, intrinsics=write_k(tmp_path, depth_unit_mm=1.0, dist=[-0.2, 0.05, 0.0, 0.0, 0.0]))
+    assert photo.intrinsics.fx == 80 and photo.rgb.shape == plain.rgb.shape
+    assert "ignored key 'depth_unit_mm' in K.json" in photo.info.notes
+    assert any(n.startswith("lens distortion (-0.2, 0.05, 0, 0, 0) removed") for n in photo.info.notes)
+    centre = (slice(H // 2 - 4, H // 2 + 4), slice(W // 2 - 4, W // 2 + 4))
+    assert (photo.rgb != plain.rgb).any(axis=2).sum() > 100  # the quadrants' edges moved
+    assert (photo.rgb[centre] == plain.rgb[centre]).all()  # but not at the principal point
 
 
 def test_intrinsics_files_that_are_not_json_objects(tmp_path):

@@ -9,7 +9,9 @@ Accepted inputs, limits and error messages: docs/load.md. In short:
   becomes ``(H, W) float32`` mm with 0 = missing; its unit is declared and checked, never guessed. Without one, a
   metric depth map embedded in the photo (an iPhone HEIC's depth image, an Android depth JPEG) is used instead
   (``footmesh.formats``); a relative one is not, and ``ImageInfo.notes`` says why;
-- the intrinsics come from a JSON file, else from EXIF ``FocalLengthIn35mmFilm``, else from a documented default
+- the intrinsics come from a calibration file (K.json, OpenCV YAML / JSON / XML, ARKit, Record3D:
+  ``footmesh.formats.camera``; its lens distortion is removed from the photo), else from EXIF
+  ``FocalLengthIn35mmFilm``, else from a documented default
   (a 26 mm-equivalent phone main camera); ``Intrinsics.source`` says which.
 
 Every problem with an input raises :class:`LoadError` (a ``ValueError``) with one sentence naming the file, so the
@@ -61,7 +63,7 @@ FOCAL_35MM_RANGE = (10.0, 400.0)
 MAX_FOV_DEG = 170.0
 """Intrinsics giving a wider field of view than this (degrees) are refused: fx or fy is not in pixels."""
 INTRINSICS_KEYS = ("fx", "fy", "cx", "cy", "width", "height")
-"""The keys of an intrinsics JSON file, all required, no others."""
+"""The keys of a K.json, all required (others are ignored with a note)."""
 
 # EXIF tags (CIPA DC-008): orientation and camera in IFD0, focal lengths in the Exif sub-IFD
 _EXIF_IFD = 0x8769
@@ -619,13 +621,16 @@ def default_intrinsics(width: int, height: int, focal_length_35mm: float | None 
 
 
 def load_intrinsics(path: str | os.PathLike, image_size: tuple[int, int], rotated: bool = False) -> Intrinsics:
-    """Intrinsics from a JSON file ``{"fx", "fy", "cx", "cy", "width", "height"}`` (px of the upright image).
+    """Intrinsics from a calibration file (``footmesh.formats.camera``), in px of the upright image.
 
-    ``image_size`` = (width, height) px of the upright image; the file's width and height must equal it
-    (``rotated``: the image was turned by its EXIF orientation, as for ``load_depth``).
+    ``image_size`` = (width, height) px of the upright image the file must fit (``rotated``: the image was turned
+    by its EXIF orientation, as for ``load_depth``). The file's lens distortion is not applied here (``load_photo``
+    removes it from the photo).
     """
+    from footmesh.formats.camera import parse_camera_file
+
     p, data = _read_bytes(path, "intrinsics file")
-    return _decode_intrinsics(data, p, image_size, rotated)
+    return parse_camera_file(data, p, image_size, rotated).intrinsics
 
 
 _UNUSABLE_NUMBER = object()
@@ -653,60 +658,6 @@ def _json_number(role: str, path: Path, key: str, value: Any) -> float:
     return float(value)
 
 
-def _decode_intrinsics(data: bytes, path: Path, image_size: tuple[int, int], rotated: bool = False) -> Intrinsics:
-    role = "intrinsics file"
-    try:
-        obj = json.loads(data.decode("utf-8-sig"), parse_int=_json_int, parse_float=_json_float)
-    except UnicodeDecodeError as exc:
-        raise LoadError(f"{role} {path} is not UTF-8 text (JSON expected)") from exc
-    except json.JSONDecodeError as exc:
-        raise LoadError(f"{role} {path} is not valid JSON: {exc.msg} at line {exc.lineno} column {exc.colno}") from exc
-    except RecursionError:
-        raise LoadError(f"{role} {path} is not valid JSON: nested too deeply for intrinsics") from None
-    if not isinstance(obj, dict):
-        raise LoadError(f"{role} {path} must hold a JSON object with keys {', '.join(INTRINSICS_KEYS)}")
-    missing = [k for k in INTRINSICS_KEYS if k not in obj]
-    unknown = sorted(k for k in obj if k not in INTRINSICS_KEYS)
-    if missing or unknown:
-        parts = ([f"missing {', '.join(missing)}"] if missing else []) + (
-            [f"unknown {', '.join(map(repr, unknown))}"] if unknown else []
-        )
-        raise LoadError(f"{role} {path}: {'; '.join(parts)} (expected exactly {', '.join(INTRINSICS_KEYS)})")
-    v = {k: _json_number(role, path, k, obj[k]) for k in INTRINSICS_KEYS}
-    for k in ("fx", "fy", "width", "height"):
-        if v[k] <= 0:
-            raise LoadError(f"{role} {path}: {k!r} must be positive, got {obj[k]}")
-    for k in ("width", "height"):
-        if v[k] != int(v[k]):
-            raise LoadError(f"{role} {path}: {k!r} must be a whole number of pixels, got {obj[k]}")
-    w, h = int(v["width"]), int(v["height"])
-    iw, ih = image_size
-    if (w, h) != (iw, ih):
-        if (w, h) == (ih, iw) and rotated:
-            hint = (
-                ": the intrinsics look taken before the image's EXIF rotation; give them for the upright image "
-                "(swap fx/fy and width/height, and move cx/cy as the rotation does)"
-            )
-        elif (w, h) == (ih, iw):
-            hint = ": its width and height are swapped"
-        elif w * ih == h * iw:
-            hint = f": same aspect ratio, so scale fx, fy, cx, cy by {iw / w:g} for this image"
-        else:
-            hint = ""
-        raise LoadError(f"{role} {path} is for a {w} x {h} px image but the image is {iw} x {ih} px{hint}")
-    for k, size in (("cx", w), ("cy", h)):
-        if not -0.5 <= v[k] <= size - 0.5:
-            raise LoadError(f"{role} {path}: {k} = {obj[k]} px is outside the image (-0.5 .. {size - 0.5} px)")
-    k_out = Intrinsics(v["fx"], v["fy"], v["cx"], v["cy"], w, h, "file", f"from {path.name}")
-    fov = max(k_out.fov_deg())
-    if fov > MAX_FOV_DEG:
-        raise LoadError(
-            f"{role} {path}: fx = {obj['fx']}, fy = {obj['fy']} give a {fov:.1f} degree field of view; "
-            "they must be in pixels, not millimetres"
-        )
-    return k_out
-
-
 # --- everything at once ---------------------------------------------------------------------------------------
 
 
@@ -726,9 +677,14 @@ def load_photo(
     image_path, image_bytes = _read_bytes(image, "image")
     rgb, info = _decode_photo(image_bytes, image_path, max_pixels)
     hashes = {"image": info.sha256}
+    camera = None
     if intrinsics is not None:
+        from footmesh.formats.camera import parse_camera_file
+
         k_path, k_bytes = _read_bytes(intrinsics, "intrinsics file")
-        k = _decode_intrinsics(k_bytes, k_path, info.size, info.orientation != 1)
+        camera = parse_camera_file(k_bytes, k_path, info.size, info.orientation != 1)
+        k = camera.intrinsics
+        info = replace(info, notes=(*info.notes, *camera.notes))
         hashes["intrinsics"] = sha256_hex(k_bytes)
     else:
         k = default_intrinsics(*info.size, info.focal_length_35mm)
@@ -741,4 +697,10 @@ def load_photo(
     elif embedded_depth:
         depth_mm, depth_source, notes = _embedded_depth(image_bytes, info, k)
         info = replace(info, notes=(*info.notes, *notes))
+    if camera is not None and camera.distortion is not None:
+        from footmesh.formats.camera import undistort
+
+        rgb, depth_mm = undistort(rgb, depth_mm, camera)
+        coefficients = ", ".join(f"{c:.4g}" for c in camera.distortion)
+        info = replace(info, notes=(*info.notes, f"lens distortion ({coefficients}) removed; intrinsics {k.note}"))
     return Photo(rgb=rgb, depth_mm=depth_mm, intrinsics=k, info=info, input_sha256=hashes, depth_source=depth_source)

@@ -115,7 +115,11 @@ def test_intrinsics(tmp_path):
     k = {"fx": 500.0, "fy": 500.0, "cx": 320.0, "cy": 240.0}
     checked = uploads.check_intrinsics(write(tmp_path / "k.upload", json.dumps(k).encode()))
     assert checked.path.name == "k.json" and json.loads(checked.path.read_text()) == k
-    for data, message in [(b"[1, 2]", "object"), (b'{"fx": Infinity}', "Infinity"), (b"\xff\xfe", "not JSON")]:
+    yaml = b"%YAML:1.0\n---\ncamera_matrix: !!opencv-matrix\n  rows: 3\n  cols: 3\n  dt: d\n"
+    yaml += b"  data: [80, 0, 47, 0, 80, 36, 0, 0, 1]\n"
+    checked = uploads.check_intrinsics(write(tmp_path / "cal.upload", yaml))
+    assert (checked.kind, checked.path.name, checked.path.read_bytes()) == ("YAML", "cal.yml", yaml)
+    for data, message in [(b"[1, 2]", "object"), (b'{"fx": Infinity}', "Infinity"), (b"\xff\xfe", "not text")]:
         with pytest.raises(uploads.UploadError, match=message):
             uploads.check_intrinsics(write(tmp_path / "bad.upload", data))
 

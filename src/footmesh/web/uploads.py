@@ -136,11 +136,22 @@ def check_depth(path: Path, max_pixels: int) -> CheckedFile:
 
 
 def check_intrinsics(path: Path) -> CheckedFile:
-    """Accept camera intrinsics as a JSON object (the pipeline checks its keys); rewrites it as plain JSON."""
+    """Accept camera intrinsics: a JSON object (rewritten as plain JSON), or an OpenCV YAML / XML calibration
+    file (kept as it is); the pipeline checks what they hold (``footmesh.formats.camera``)."""
+    raw = path.read_bytes()
     try:
-        data = json.loads(path.read_bytes().decode("utf-8"), parse_constant=_no_constant)
+        text = raw.decode("utf-8-sig")
     except UnicodeDecodeError:
-        raise UploadError(400, f"the intrinsics file is not JSON; it looks like {describe(_head(path))}") from None
+        raise UploadError(400, f"the intrinsics file is not text; it looks like {describe(_head(path))}") from None
+    if "\x00" in text:
+        raise UploadError(400, "the intrinsics file is not text (it holds NUL characters)")
+    stripped = text.lstrip()
+    if stripped and stripped[0] not in "{[":  # not JSON: YAML (OpenCV, ROS) or OpenCV XML
+        return CheckedFile(
+            _rename(path, ".xml" if stripped[0] == "<" else ".yml"), "XML" if stripped[0] == "<" else "YAML"
+        )
+    try:
+        data = json.loads(text, parse_constant=_no_constant)
     except ValueError as exc:  # JSONDecodeError, NaN / Infinity, an integer of more than 4,300 digits
         raise UploadError(400, f"the intrinsics file is not valid JSON: {exc}"[:300]) from None
     except RecursionError:
