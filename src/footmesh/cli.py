@@ -417,7 +417,9 @@ def _add_eval_commands(sub: argparse._SubParsersAction) -> None:
     cues.add_argument("--json", help="also write the numbers to this JSON file")
     cues.set_defaults(func=_run_eval_cues)
     meas = ev_sub.add_parser("measure", help="Tables 4.7 (4.8, 4.9): the whole pipeline on synthetic photos")
-    meas.add_argument("--modes", default="rgb_ref,rgbd,depth,rgb", help="comma list of rgb_ref, rgbd, depth, rgb")
+    meas.add_argument(
+        "--modes", default="rgb_ref,rgbd,depth,rgb", help="comma list of rgb_ref, rgbd, depth, rgb, rgbd_heic"
+    )
     meas.add_argument("--n", type=int, default=60, help="photos per mode (default 60)")
     meas.add_argument("--size", type=int, default=640, help="photo side, px (default 640)")
     meas.add_argument(

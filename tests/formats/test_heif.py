@@ -1,4 +1,4 @@
-"""HEIC / HEIF photos and the depth image inside them, on files the tests write (see _heif_files.py)."""
+"""HEIC / HEIF photos and the depth image inside them, on files the tests write (``formats.heif_writer``)."""
 
 from __future__ import annotations
 
@@ -7,11 +7,11 @@ import os
 
 import numpy as np
 import pytest
-from _heif_files import write_heic
 from PIL import Image
 
 from footmesh.formats.embedded import EmbeddedDepth, align_depth, orient
 from footmesh.formats.heif import read_heif_depth
+from footmesh.formats.heif_writer import write_heic
 from footmesh.load import LoadError, load_photo
 
 W, H = 160, 120  # photo as stored, px

@@ -6,7 +6,10 @@ object on the floor), written to disk as PNG (+ 16-bit depth PNG, K.json) and me
 
 - ``rgb_ref``: RGB with an A4 sheet, a card or a marker (scale from the reference object);
 - ``rgbd``: RGB + depth; ``depth``: the depth map alone;
-- ``rgb``: RGB without any reference: unscaled, so only the ratios (width / length) are compared.
+- ``rgb``: RGB without any reference: unscaled, so only the ratios (width / length) are compared;
+- ``rgbd_heic``: the ``rgbd`` photos written as an iPhone writes a LiDAR photo: one HEIC stored sideways with
+  EXIF orientation 6, its depth image inside at 256 px, 8-bit uniform Z over the scene's range, measured with no
+  depth flag (the embedded depth path of issue 20).
 """
 
 from __future__ import annotations
@@ -27,10 +30,14 @@ from footmesh.eval import thesis
 from footmesh.measure import FootLandmarks, measure_foot
 from footmesh.model.layer import default_model
 
-MODES = ("rgb_ref", "rgbd", "depth", "rgb")
+MODES = ("rgb_ref", "rgbd", "depth", "rgb", "rgbd_heic")
 REFERENCES = ("a4", "card", "marker")
 EVAL_SEED = 4242
 """Seed of the test photos (training used seeds 1-3)."""
+SEED_MODE = {"rgbd_heic": "rgbd"}
+"""Modes that measure another mode's photos (written differently)."""
+HEIC_DEPTH_SIDE_PX = 256
+"""Longer side of the depth image in ``rgbd_heic`` photos (an iPhone's LiDAR depth: 256 x 192)."""
 BASELINE_MM = {"length": 14.2, "width": 5.3}
 """DESIGN.md: always answering the population's mean foot."""
 
@@ -125,6 +132,34 @@ def _write_inputs(sample: dict, folder: Path, with_depth: bool) -> dict:
     return paths
 
 
+def _write_heic_inputs(sample: dict, folder: Path) -> dict:
+    """The photo as an iPhone-like HEIC with its depth inside (see ``rgbd_heic``), and K.json."""
+    from PIL import Image
+
+    from footmesh.formats.heif_writer import write_heic
+
+    paths = _write_inputs(sample, folder, with_depth=False)
+    depth_mm = sample["depth"].astype(np.float64)
+    valid = depth_mm > 0
+    near_m, far_m = math.floor(depth_mm[valid].min() / 10) / 100, math.ceil(depth_mm[valid].max() / 10) / 100
+    h, w = depth_mm.shape
+    scale = HEIC_DEPTH_SIDE_PX / max(h, w)
+    small = cv2.resize(depth_mm, (round(w * scale), round(h * scale)), interpolation=cv2.INTER_NEAREST) / 1000.0
+    codes = np.clip(np.round((small - near_m) / (far_m - near_m) * 255), 1, 254)
+    codes[small <= 0] = 255  # missing: the far clip code, which the reader drops
+    exif = Image.Exif()
+    exif[0x0112] = 6  # stored as the sensor saw it; the viewer turns it a quarter clockwise
+    data = write_heic(
+        np.ascontiguousarray(np.rot90(sample["rgb"], 1)),
+        exif=exif.tobytes(),
+        depth_samples=np.ascontiguousarray(np.rot90(codes, 1)).astype(np.uint8),
+        z_near=near_m,
+        z_far=far_m,
+    )
+    (folder / "photo.heic").write_bytes(data)
+    return {**paths, "image": folder / "photo.heic"}
+
+
 def evaluate_mode(
     mode: str, n: int, size: int, views: str = "random", progress: bool = True, seed: int = EVAL_SEED
 ) -> ModeResult:
@@ -150,13 +185,16 @@ def evaluate_mode(
     with tempfile.TemporaryDirectory(prefix="footmesh-eval-") as tmp:
         for i in tqdm(range(n), desc=f"eval measure {mode}", disable=not progress):
             reference = REFERENCES[i % 3] if mode == "rgb_ref" else "none"
-            sample = renderer(reference).render(seed + MODES.index(mode), i)
+            sample = renderer(reference).render(seed + MODES.index(SEED_MODE.get(mode, mode)), i)
             side = "right" if int(sample["side"]) else "left"
             view = None
             if int(sample["view_id"]) >= 0:
                 _, _, axis, deg = thesis_view(int(sample["view_id"]), side)
                 view = (axis, deg)
-            paths = _write_inputs(sample, Path(tmp) / f"{i}", with_depth=mode in ("rgbd", "depth"))
+            if mode == "rgbd_heic":
+                paths = _write_heic_inputs(sample, Path(tmp) / f"{i}")
+            else:
+                paths = _write_inputs(sample, Path(tmp) / f"{i}", with_depth=mode in ("rgbd", "depth"))
             truth = true_measurements(sample["shape"], side)
             t0 = time.perf_counter()
             try:
@@ -165,7 +203,7 @@ def evaluate_mode(
                     Path(tmp) / f"{i}" / "out",
                     depth=paths.get("depth"),
                     intrinsics=paths["intrinsics"],
-                    input={"rgb_ref": "rgb", "rgb": "rgb"}.get(mode, mode),
+                    input={"rgb_ref": "rgb", "rgb": "rgb", "rgbd_heic": "rgbd"}.get(mode, mode),
                 )
             except ValueError as exc:
                 result.records.append(Record(i, view, False, str(exc)))
@@ -197,7 +235,7 @@ def evaluate_mode(
 
 def format_tables(results: dict[str, ModeResult]) -> str:
     """Table 4.7 (and 4.8/4.9 for thesis viewpoints) in Markdown, ours beside the thesis'."""
-    thesis_key = {"rgb_ref": "rgb", "rgbd": "rgbd", "depth": "depth", "rgb": "rgb"}
+    thesis_key = {"rgb_ref": "rgb", "rgbd": "rgbd", "depth": "depth", "rgb": "rgb", "rgbd_heic": "rgbd"}
     lines = [
         "Table 4.7: foot length and ball width error, mm: mean absolute (SD); thesis: ISM, same input",
         "",

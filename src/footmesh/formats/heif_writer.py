@@ -1,7 +1,8 @@
-"""HEIC files with an embedded depth image, written for the tests.
+"""HEIC files with an embedded depth image, as iPhones write them: for the tests and ``footmesh eval measure``.
 
 pillow-heif (libheif) writes HEIF photos but cannot attach a depth image (libheif has no API for it), so this
-module writes the container itself: it encodes the photo and the depth (and an optional confidence map) with
+module writes the container itself (written by hand because no maintained Python library writes HEIF auxiliary
+images): it encodes the photo and the depth (and an optional confidence map) with
 pillow-heif, reads back their HEVC streams and properties, and assembles one ISO-BMFF file (ISO/IEC 14496-12,
 23008-12) where the depth is an auxiliary image (``auxC`` = ``urn:mpeg:hevc:2015:auxid:2``, ``auxl`` reference)
 whose representation (type, z_near, z_far, d_min, d_max) sits in the ``auxC`` subtype as the HEVC depth
