@@ -164,8 +164,12 @@ def test_bundled_photos_measure_close_to_the_truth(measured):
         assert 0 < length["uncertainty_mm"] and error <= 2.5 * length["uncertainty_mm"], (name, length)
         assert np.asarray(result["joints2d_px"]).shape == (18, 2)
         assert np.asarray(result["joints3d_mm"]).shape == (18, 3)
-        for key in ("mesh_obj", "mesh_glb", "overlay_png", "result_json"):
+        for key in ("mesh_obj", "mesh_glb", "overlay_png", "mask_png", "result_json"):
             assert (folder / result["files"][key]).is_file(), (name, key)
+        mask = cv2.imread(str(folder / "mask.png"), cv2.IMREAD_UNCHANGED)
+        assert mask.shape == (result["image"]["height"], result["image"]["width"]) and set(np.unique(mask)) == {0, 255}
+        heel, toe = np.asarray(result["joints2d_px"])[[17, 3]].round().astype(int)
+        assert mask[heel[1], heel[0]] == 255 or mask[toe[1], toe[0]] == 255, name  # on the foot, not elsewhere
         assert result["sizes"]["eu"] is not None
         assert result["fit"]["quality"]["vertices_outside_2px"] <= MeasureConfig().max_model_outside
 

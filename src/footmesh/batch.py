@@ -97,9 +97,14 @@ def measure_batch(
     side: str = "auto",
     print_json: bool = False,
     embedded_depth: bool = True,
+    same_foot: bool = False,
 ) -> int:
-    """Measure every photo (skipping those already measured into their folder); returns the exit code."""
-    folders = output_folders(images, check_output(out))
+    """Measure every photo (skipping those already measured into their folder); returns the exit code.
+
+    ``same_foot``: the photos show one foot; also combine them (``same_foot.json`` in ``out``, footmesh.same_foot).
+    """
+    out_dir = check_output(out)
+    folders = output_folders(images, out_dir)
     results: list[tuple[str, dict | None, str | None]] = []
     for i, (image, folder) in enumerate(zip(images, folders, strict=True)):
         k = None
@@ -137,6 +142,13 @@ def measure_batch(
         print(summary_table(results), file=sys.stderr if print_json else sys.stdout)
     elif results[0][1] is not None and not print_json:
         print(summary_table(results))
+    if same_foot:
+        from footmesh.report import write_json
+        from footmesh.same_foot import combine, format_same_foot
+
+        same = combine(results)
+        write_json(out_dir / "same_foot.json", same.to_dict())
+        print(format_same_foot(same), file=sys.stderr if print_json else sys.stdout)
     return 0 if all(err is None for _, _, err in results) else 2
 
 

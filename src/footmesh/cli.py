@@ -48,6 +48,11 @@ def _add_measure_command(sub: argparse._SubParsersAction) -> None:
     )
     m.add_argument("--depth", action="append", help="depth map per photo (16-bit PNG in mm, or .npy); repeatable")
     m.add_argument(
+        "--same-foot",
+        action="store_true",
+        help="the photos show one foot: also combine them (inverse-variance) and warn where they disagree",
+    )
+    m.add_argument(
         "--no-embedded-depth",
         action="store_true",
         help="ignore a depth map stored inside the photo (iPhone HEIC, Android depth JPEG); measure it as RGB",
@@ -68,6 +73,8 @@ def _run_measure(args: argparse.Namespace) -> int:
     if depths and len(depths) != n:
         raise UserError(f"give one --depth per photo: {n} photo(s) but {len(depths)} --depth")
     intrinsics = args.intrinsics or []
+    if args.same_foot and n < 2:
+        raise UserError("--same-foot combines several photos of one foot; give at least two")
     if len(intrinsics) not in (0, 1, n):
         raise UserError(f"give one --intrinsics for all photos or one per photo, not {len(intrinsics)} for {n}")
     return measure_batch(
@@ -79,6 +86,7 @@ def _run_measure(args: argparse.Namespace) -> int:
         side=args.side,
         print_json=args.json,
         embedded_depth=not args.no_embedded_depth,
+        same_foot=args.same_foot,
     )
 
 

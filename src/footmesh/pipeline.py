@@ -268,6 +268,7 @@ class _Files:
     faces: np.ndarray
     canonical_faces: np.ndarray
     overlay: np.ndarray
+    mask: np.ndarray  # (H, W) uint8 0/255 in photo pixels
 
 
 def run_pipeline(photo: Photo, side: str, config: MeasureConfig, input: str = "auto") -> tuple[dict, _Files]:
@@ -456,9 +457,14 @@ def run_pipeline(photo: Photo, side: str, config: MeasureConfig, input: str = "a
             "mesh_glb": "mesh.glb",
             "canonical_obj": "canonical.obj",
             "overlay_png": "overlay.png",
+            "mask_png": "mask.png",
         },
     }
-    files = _Files(fit.vertices_cam, canonical, model.faces(fit.side).numpy(), faces, overlay)
+    # the foot's silhouette in photo pixels: nearest-neighbour, so it stays the network's 0/1 decision
+    mask = cv2.resize(
+        located.mask.astype(np.uint8) * 255, photo.rgb.shape[1::-1], interpolation=cv2.INTER_NEAREST
+    )
+    files = _Files(fit.vertices_cam, canonical, model.faces(fit.side).numpy(), faces, overlay, mask)
     return result, files
 
 
@@ -555,7 +561,8 @@ def write_outputs(out: Path, result: dict, files: _Files) -> None:
     mesh = trimesh.Trimesh(files.vertices_cam, files.faces, process=False)
     with report.atomic_path(out / "mesh.glb") as tmp:
         tmp.write_bytes(mesh.export(file_type="glb"))
-    with report.atomic_path(out / "overlay.png") as tmp:
-        ok, buf = cv2.imencode(".png", files.overlay[..., ::-1])
-        tmp.write_bytes(buf.tobytes())
+    for name, image in (("overlay.png", files.overlay[..., ::-1]), ("mask.png", files.mask)):
+        with report.atomic_path(out / name) as tmp:
+            ok, buf = cv2.imencode(".png", image)
+            tmp.write_bytes(buf.tobytes())
     report.write_json(out / "result.json", result)
