@@ -364,3 +364,30 @@ def test_the_mesh_decoder_reconstructs_the_foot_in_the_photos_camera_frame():
         assert decoder_mesh(located, rgb, np.zeros_like(depth), K, "rgbd") is None
     error = np.linalg.norm(mesh - sample["vertices"], axis=1).mean()
     assert error < 15.0, f"mean vertex error {error:.1f} mm"
+
+
+@pytest.mark.slow
+def test_a_photo_of_both_feet_measures_each_and_keeps_the_one_asked_for(tmp_path):
+    from footmesh.eval.measure import _write_inputs, true_measurements
+    from footmesh.synth.render import Renderer
+    from footmesh.synth.scene import guided_view_config
+
+    # the other foot (same shape, mirrored) beside the measured one, an A4 sheet under it; seed 31 index 0 shows
+    # both feet apart enough to be two regions
+    sample = Renderer(guided_view_config(size=640, reference="a4", other_foot_fraction=1.0)).render(31, 0)
+    side = "right" if int(sample["side"]) else "left"
+    truth = true_measurements(sample["shape"], side)["stick_length"]
+    paths = _write_inputs(sample, tmp_path / "in", with_depth=False)
+    result = measure_photo(paths["image"], tmp_path / "auto", intrinsics=paths["intrinsics"])
+    assert [foot["side"] for foot in result["feet"]] == [side, "left" if side == "right" else "right"]
+    assert [foot["primary"] for foot in result["feet"]] == [True, False]
+    assert result["side"] == side and abs(result["measurements"]["stick_length"]["value_mm"] - truth) < 6.0
+    assert any(m.startswith("two feet in view") for m in result["messages"])
+    assert (tmp_path / "auto" / "mask.png").is_file() and (tmp_path / "auto" / "mask_1.png").is_file()
+    other = "left" if side == "right" else "right"
+    picked = measure_photo(paths["image"], tmp_path / "other", intrinsics=paths["intrinsics"], side=other)
+    assert picked["side"] == other and "feet" not in picked  # --side: only the foot the network takes for it
+    assert any(
+        m.startswith(f"two feet in view: measured the one the network takes for the {other}")
+        for m in picked["messages"]
+    )

@@ -187,6 +187,11 @@ def summary_table(results: list[tuple[str, dict | None, str | None]]) -> str:
             return s.get("label", "-") if isinstance(s, dict) else "-"
 
         note = "; ".join(msg for msg in result.get("messages", []) if msg.startswith("unscaled"))[:60]
+        for foot in result.get("feet", []):
+            if foot["measured"] and not foot["primary"]:
+                other = foot["measurements"]["stick_length"]["value_mm"]
+                length = "unscaled" if other is None else f"{other:.1f} mm"
+                note = f"two feet: the other ({foot['side']}) {length}" + (f"; {note}" if note else "")
         rows.append(
             (
                 Path(image).name,

@@ -14,6 +14,7 @@ import os
 import time
 from dataclasses import dataclass, field, replace
 from pathlib import Path
+from typing import Any
 
 import cv2
 import numpy as np
@@ -120,9 +121,17 @@ def whole_photo_cues(
 def locate_foot(
     rgb: np.ndarray | None, depth: np.ndarray | None, K: np.ndarray, kind: str, config: MeasureConfig
 ) -> Located:
-    """Find the foot: cues on the whole photo (padded square), then again on a square crop framed like the
-    training images (the foot's longer side ``config.crop_fill`` of the crop), the silhouette then snapped to the
-    photo's edges (or, with a depth map alone, to those of the height above the floor; K (3, 3) intrinsics)."""
+    """The largest foot of the photo (``locate_feet``'s first)."""
+    return locate_feet(rgb, depth, K, kind, config)[0]
+
+
+def locate_feet(
+    rgb: np.ndarray | None, depth: np.ndarray | None, K: np.ndarray, kind: str, config: MeasureConfig
+) -> list[Located]:
+    """Find the feet, largest first (one, or two when a second region is at least ``config.second_foot_ratio``
+    of the first): cues on the whole photo (padded square), then again on a square crop around each region framed
+    like the training images (the foot's longer side ``config.crop_fill`` of the crop), the silhouette then
+    snapped to the photo's edges (or, with a depth map alone, to those of the height above the floor; K (3, 3))."""
     ref = rgb if rgb is not None else depth
     h, w = ref.shape[:2]
     mask = whole_photo_cues(kind, rgb, depth).silhouette >= 0.5
@@ -134,10 +143,25 @@ def locate_foot(
             "filling about a third of the picture"
         )
     order = np.argsort(areas)[::-1]
-    big = 1 + order[0]
+    regions = [1 + order[0]]
     if len(order) > 1 and areas[order[1]] >= config.second_foot_ratio * areas[order[0]]:
-        raise PipelineError("two feet (or two foot-like regions) found; photograph one foot at a time")
-    crop = crop_around(*stats[big, :4], config.crop_fill)
+        regions.append(1 + order[1])
+    feet = []
+    for region in regions:
+        located = _located_in(rgb, depth, K, kind, config, stats[region, :4])
+        if located is not None:
+            feet.append(located)
+    if not feet:
+        raise PipelineError("no foot found in the photo (the foot region vanished on a closer look)")
+    return feet
+
+
+def _located_in(rgb, depth, K, kind: str, config: MeasureConfig, box: np.ndarray) -> Located | None:
+    """The second pass on the crop around one region's box (x, y, w, h px): its cues and silhouette, or None when
+    the region vanishes on the closer look."""
+    ref = rgb if rgb is not None else depth
+    h, w = ref.shape[:2]
+    crop = crop_around(*box, config.crop_fill)
     crop_rgb = None if rgb is None else crop.cut(rgb)
     crop_depth = None if depth is None else crop.cut(depth, fill=0.0)
     second = predict_cues(kind, crop_rgb, crop_depth)
@@ -151,7 +175,7 @@ def locate_foot(
     mask = cues.silhouette >= 0.5
     n, labels, stats = _components(mask)
     if n <= 1:
-        raise PipelineError("no foot found in the photo (the foot region vanished on a closer look)")
+        return None
     keep = 1 + np.argmax(stats[1:, cv2.CC_STAT_AREA])
     mask = labels == keep
     return Located(crop, replace(cues, silhouette=np.where(mask, cues.silhouette, 0.0).astype(np.float32)), mask)
@@ -269,12 +293,16 @@ class _Files:
     canonical_faces: np.ndarray
     overlay: np.ndarray
     mask: np.ndarray  # (H, W) uint8 0/255 in photo pixels
+    extra_masks: tuple[tuple[str, np.ndarray], ...] = ()  # (file name, mask) of the other feet in the photo
 
 
 def run_pipeline(photo: Photo, side: str, config: MeasureConfig, input: str = "auto") -> tuple[dict, _Files]:
-    """Everything after loading: the result dict and the arrays of the files to write."""
+    """Everything after loading: the result dict and the arrays of the files to write.
+
+    Each foot found is measured (two when both are in view, ``locate_feet``); the result's own keys are the foot
+    asked for with ``side``, else the one measured best, and ``feet`` lists every foot.
+    """
     from footmesh.cues.reference import detect_reference
-    from footmesh.fit import FitConfig, FitInit, canonical_measures, fit_foot, mesh_side_residuals
 
     timings = {}
     t = time.perf_counter()
@@ -283,20 +311,121 @@ def run_pipeline(photo: Photo, side: str, config: MeasureConfig, input: str = "a
         raise PipelineError(f"{kind} input needs a depth map (--depth)")
     max_side = config.rgb_working_max_side if kind == "rgb" else config.working_max_side
     rgb, depth, K, to_photo = working_photo(photo, max_side)
-    h, w = rgb.shape[:2]
     with torch.inference_mode():
-        located = locate_foot(None if kind == "depth" else rgb, None if kind == "rgb" else depth, K, kind, config)
-    check_framing(located, w, h, config)
+        feet = locate_feet(None if kind == "depth" else rgb, None if kind == "rgb" else depth, K, kind, config)
     timings["cues_s"] = time.perf_counter() - t
 
     t = time.perf_counter()
     reference = None
-    messages: list[str] = list(photo.info.notes) if hasattr(photo, "info") else []
+    notes = list(photo.info.notes)
     if kind == "rgb":
-        exclude = cv2.dilate(located.mask.astype(np.uint8), np.ones((15, 15), np.uint8)) > 0
+        feet_mask = np.any([foot.mask for foot in feet], axis=0).astype(np.uint8)
+        exclude = cv2.dilate(feet_mask, np.ones((15, 15), np.uint8)) > 0
         reference = detect_reference(rgb, K, exclude_mask=exclude)
     timings["reference_s"] = time.perf_counter() - t
 
+    if len(feet) > 1 and side != "auto":
+        feet, why = _foot_of_side(feet, side)
+        notes.append(why)
+    outcomes: list[tuple[dict, _Files, Located, Any] | PipelineError] = []
+    for located in feet:
+        try:
+            outcomes.append(
+                _measure_located(
+                    photo, located, side, config, kind, rgb, depth, K, to_photo, reference, list(notes), dict(timings)
+                )
+            )
+        except PipelineError as exc:
+            outcomes.append(exc)
+    measured = [o for o in outcomes if not isinstance(o, PipelineError)]
+    if not measured:
+        raise next(o for o in outcomes if isinstance(o, PipelineError))
+    if len(outcomes) == 1:
+        return measured[0][0], measured[0][1]
+    return _both_feet(outcomes, K, reference, side)
+
+
+def _foot_of_side(feet: list[Located], side: str) -> tuple[list[Located], str]:
+    """The foot of two that the networks take for ``side`` (their left/right head), and a message saying so."""
+    probabilities = [foot.cues.right_probability for foot in feet]
+    if any(p is None for p in probabilities):
+        return feet, f"two feet in view: both measured, the {side} one kept (the networks tell no side here)"
+    pick = int(np.argmax(probabilities)) if side == "right" else int(np.argmin(probabilities))
+    return [feet[pick]], (
+        f"two feet in view: measured the one the network takes for the {side} foot "
+        f"(p(right) {probabilities[pick]:.2f} against {probabilities[1 - pick]:.2f} for the other)"
+    )
+
+
+def _both_feet(outcomes: list, K: np.ndarray, reference, requested: str) -> tuple[dict, _Files]:
+    """One result for a photo of two feet: the keys of the foot asked for (``requested`` side) or else of the
+    best-measured one, ``feet`` listing both, both drawn on the overlay."""
+    measured = [o for o in outcomes if not isinstance(o, PipelineError)]
+
+    def rank(outcome) -> tuple:
+        result = outcome[0]
+        length = result["measurements"]["stick_length"]
+        u = length["uncertainty_mm"] if length["uncertainty_mm"] is not None else math.inf
+        return (requested != "auto" and result["side"] != requested, not result["scaled"], u, result["fit"]["loss"])
+
+    primary = min(measured, key=rank)
+    result, files = primary[0], primary[1]
+    feet, overlay, masks = [], files.overlay, []
+    for index, outcome in enumerate(outcomes):
+        if isinstance(outcome, PipelineError):
+            feet.append({"index": index, "measured": False, "error": str(outcome)})
+            continue
+        other, other_files, located, fit = outcome
+        name = "mask.png" if outcome is primary else f"mask_{index}.png"
+        feet.append(
+            {
+                "index": index,
+                "measured": True,
+                "primary": outcome is primary,
+                "side": other["side"],
+                "side_source": other["side_source"],
+                "scale_source": other["scale_source"],
+                "scaled": other["scaled"],
+                "measurements": other["measurements"],
+                "sizes": other["sizes"],
+                "joints2d_px": other["joints2d_px"],
+                "files": {"mask_png": name},
+            }
+        )
+        if outcome is not primary:
+            overlay = draw_overlay(overlay, located, fit, K, reference)
+            masks.append((name, other_files.mask))
+    result["feet"] = feet
+    sides = " and ".join(f"a {foot['side']}" for foot in feet if foot["measured"])
+    result["messages"].append(
+        f"two feet in view: {sides} foot measured; the result's own keys are the {result['side']} foot "
+        "(`feet` lists both; --side picks one)"
+    )
+    refused = [foot["error"] for foot in feet if not foot["measured"]]
+    if refused:
+        result["messages"].append(f"the other foot was not measured: {refused[0]}")
+    return result, replace(files, overlay=overlay, extra_masks=tuple(masks))
+
+
+def _measure_located(
+    photo: Photo,
+    located: Located,
+    side: str,
+    config: MeasureConfig,
+    kind: str,
+    rgb: np.ndarray,
+    depth: np.ndarray | None,
+    K: np.ndarray,
+    to_photo: float,
+    reference,
+    messages: list[str],
+    timings: dict[str, float],
+) -> tuple[dict, _Files, Located, Any]:
+    """Fit, check and measure one located foot: (result dict, files, the located foot, the fit)."""
+    from footmesh.fit import FitConfig, FitInit, canonical_measures, fit_foot, mesh_side_residuals
+
+    h, w = rgb.shape[:2]
+    check_framing(located, w, h, config)
     t = time.perf_counter()
     init = None
     side_source = "given" if side != "auto" else "fit"
@@ -461,11 +590,9 @@ def run_pipeline(photo: Photo, side: str, config: MeasureConfig, input: str = "a
         },
     }
     # the foot's silhouette in photo pixels: nearest-neighbour, so it stays the network's 0/1 decision
-    mask = cv2.resize(
-        located.mask.astype(np.uint8) * 255, photo.rgb.shape[1::-1], interpolation=cv2.INTER_NEAREST
-    )
+    mask = cv2.resize(located.mask.astype(np.uint8) * 255, photo.rgb.shape[1::-1], interpolation=cv2.INTER_NEAREST)
     files = _Files(fit.vertices_cam, canonical, model.faces(fit.side).numpy(), faces, overlay, mask)
-    return result, files
+    return result, files, located, fit
 
 
 def _reference_dict(reference, to_photo: float) -> dict:
@@ -561,7 +688,7 @@ def write_outputs(out: Path, result: dict, files: _Files) -> None:
     mesh = trimesh.Trimesh(files.vertices_cam, files.faces, process=False)
     with report.atomic_path(out / "mesh.glb") as tmp:
         tmp.write_bytes(mesh.export(file_type="glb"))
-    for name, image in (("overlay.png", files.overlay[..., ::-1]), ("mask.png", files.mask)):
+    for name, image in (("overlay.png", files.overlay[..., ::-1]), ("mask.png", files.mask), *files.extra_masks):
         with report.atomic_path(out / name) as tmp:
             ok, buf = cv2.imencode(".png", image)
             tmp.write_bytes(buf.tobytes())
