@@ -69,18 +69,38 @@ def _located(mask: np.ndarray, joints: np.ndarray) -> Located:
     return Located(CropBox(0, 0, mask.shape[0]), cues, mask)
 
 
+def _foot_joints() -> np.ndarray:
+    """(18, 2) joints of a foot lying left (toes, x = 20) to right (heel, x = 78) across a 100 x 100 photo."""
+    joints = np.full((18, 2), 50.0)
+    joints[[3, 6, 9, 12, 15], 0] = 20.0  # toe tips
+    joints[[3, 6, 9, 12, 15], 1] = [36.0, 42.0, 47.0, 52.0, 56.0]
+    joints[17] = [78.0, 45.0]  # heel
+    joints[16] = [70.0, 40.0]  # ankle
+    return joints
+
+
 def test_framing_refuses_a_foot_cut_off_by_the_edge():
     mask = np.zeros((100, 100), bool)
-    mask[30:60, 20:80] = True
-    joints = np.full((18, 2), 50.0)
+    mask[30:60, 18:80] = True
+    joints = _foot_joints()
     check_framing(_located(mask, joints), 100, 100, MeasureConfig())  # well inside: fine
-    cut = mask.copy()
-    cut[30:60, 0:80] = True
+    cut, at_edge = mask.copy(), joints.copy()
+    cut[30:60, 0:80] = True  # the toes run into the left edge: their tips (as the network puts them) on it
+    at_edge[[3, 6, 9, 12, 15], 0] = 3.0
     with pytest.raises(PipelineError, match="cut off"):
-        check_framing(_located(cut, joints), 100, 100, MeasureConfig())
-    joints[17] = [-20.0, 50.0]  # heel beyond the left edge
+        check_framing(_located(cut, at_edge), 100, 100, MeasureConfig())
+    check_framing(_located(cut, joints), 100, 100, MeasureConfig())  # silhouette far beyond the tips: not the foot
+    outside = joints.copy()
+    outside[17] = [-20.0, 50.0]  # heel beyond the left edge
     with pytest.raises(PipelineError, match="cut off"):
-        check_framing(_located(mask, joints), 100, 100, MeasureConfig())
+        check_framing(_located(mask, outside), 100, 100, MeasureConfig())
+
+
+def test_framing_takes_the_leg_leaving_the_frame_for_normal():
+    mask = np.zeros((100, 100), bool)
+    mask[30:60, 18:80] = True
+    mask[40:100, 66:76] = True  # the leg, from the ankle down to the bottom edge, far from the foot's joints
+    check_framing(_located(mask, _foot_joints()), 100, 100, MeasureConfig())
 
 
 def test_output_folders_one_per_photo_and_unique(tmp_path):

@@ -246,7 +246,11 @@ class MeasureConfig:
     second_foot_ratio: float = 0.35
     """A second region at least this large relative to the foot means two feet."""
     max_border_pixels: int = 12
-    """More silhouette pixels than this on the photo's edge: the foot is cut off."""
+    """More silhouette pixels than this on the photo's edge near the foot's joints: the foot is cut off."""
+    foot_zone_margin: float = 0.15
+    """Silhouette pixels on the photo's edge count for ``max_border_pixels`` only within this fraction of the
+    foot's 2D length (heel to the farthest toe tip) around the convex hull of its joints: the leg leaving the
+    frame (almost every real photo) is no cut-off foot; the toes or the heel on the edge are."""
     edge_margin_px: float = 2.0
     max_rgb_end_on: float = 0.5
     """RGB photos (no depth) are refused when the fitted foot's long axis points within acos(this) = 60 deg of the

@@ -215,11 +215,23 @@ def joint_sigma_px(crop_side_px: int, config: MeasureConfig) -> float:
     return max(config.joint_sigma_224_px * crop_side_px / 224.0, 1.0)
 
 
+_LENGTH_TIPS = [3, 6, 9, 12, 15]  # the toe tips
+_HEEL = 17
+
+
 def check_framing(located: Located, width: int, height: int, config: MeasureConfig) -> None:
-    """Refuse a foot cut off by the photo's edge (its length could not be measured)."""
-    m = located.mask
+    """Refuse a foot cut off by the photo's edge (its length could not be measured); the leg leaving the frame
+    is normal: only silhouette pixels on the edge near the foot's joints (``config.foot_zone_margin``) count."""
+    joints = located.cues.joints2d_px
+    length_px = float(np.linalg.norm(joints[_LENGTH_TIPS] - joints[_HEEL], axis=1).max())
+    zone = np.zeros(located.mask.shape, np.uint8)
+    cv2.fillConvexPoly(zone, cv2.convexHull(np.round(joints).astype(np.int32)), 1)
+    reach = int(round(config.foot_zone_margin * length_px))
+    if reach > 0:
+        zone = cv2.dilate(zone, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * reach + 1, 2 * reach + 1)))
+    m = located.mask & (zone > 0)
     border = np.concatenate([m[0], m[-1], m[:, 0], m[:, -1]])
-    ends = located.cues.joints2d_px[[3, 6, 17]]  # big toe tip, second toe tip, heel: the ends of the length
+    ends = joints[[3, 6, 17]]  # big toe tip, second toe tip, heel: the ends of the length
     margin = config.edge_margin_px
     outside = (ends[:, 0] < -margin) | (ends[:, 0] > width - 1 + margin)
     outside |= (ends[:, 1] < -margin) | (ends[:, 1] > height - 1 + margin)
