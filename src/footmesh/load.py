@@ -582,13 +582,12 @@ def _embedded_depth(
             why = f"its median depth of {median_mm:.4g} mm is outside the {lo:g}-{hi:g} mm of a foot photo"
     if why is not None:
         return None, None, [*notes, f"the depth map inside the photo was not used ({why}); measured as RGB"]
-    assert source is not None
+    stored_w, stored_h = embedded.size
     note = (
-        f"depth from the photo's {source.container}: {source.representation.replace('_', ' ')}, "
-        f"{source.near_mm:g}-{source.far_mm:g} mm, {source.bits}-bit, {source.stored_size[0]} x "  # type: ignore[index]
-        f"{source.stored_size[1]} px"  # type: ignore[index]
+        f"depth from the photo's {embedded.container}: {embedded.representation.replace('_', ' ')}, "
+        f"{1000 * embedded.near_m:g}-{1000 * embedded.far_m:g} mm, {embedded.bits}-bit, {stored_w} x {stored_h} px"
     )
-    if source.dropped_low_confidence:
+    if source is not None and source.dropped_low_confidence:
         note += f", {100 * source.dropped_low_confidence:.1f} % of it dropped for low confidence"
     return depth_mm, source, [*notes, note]
 

@@ -413,6 +413,11 @@ def _both_feet(outcomes: list, K: np.ndarray, reference, requested: str) -> tupl
         f"two feet in view: {sides} foot measured; the result's own keys are the {result['side']} foot "
         "(`feet` lists both; --side picks one)"
     )
+    fitted_sides = [foot["side"] for foot in feet if foot["measured"]]
+    if len(fitted_sides) == 2 and fitted_sides[0] == fitted_sides[1]:
+        result["messages"].append(
+            f"both feet were fitted as {fitted_sides[0]} feet, so one of them is wrong; --side picks the one wanted"
+        )
     refused = [foot["error"] for foot in feet if not foot["measured"]]
     if refused:
         result["messages"].append(f"the other foot was not measured: {refused[0]}")
