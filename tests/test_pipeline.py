@@ -411,3 +411,20 @@ def test_a_photo_of_both_feet_measures_each_and_keeps_the_one_asked_for(tmp_path
         m.startswith(f"two feet in view: measured the one the network takes for the {other}")
         for m in picked["messages"]
     )
+
+
+def test_a_foot_lying_on_a_floor_seen_from_straight_above_cannot_be_end_on():
+    from footmesh.pipeline import floor_end_on_bound
+
+    K = np.array([[100.0, 0, 49.5], [0, 100.0, 49.5], [0, 0, 1]])
+    mask = np.zeros((100, 100), bool)
+    mask[40:60, 40:60] = True  # in the middle of the view
+    down = np.eye(4)
+    down[:3, 2] = [0.0, 0.0, -1.0]  # the floor's normal points back at the camera: looking straight down
+    assert floor_end_on_bound(mask, K, down) == pytest.approx(0.0, abs=1e-9)
+    grazing = np.eye(4)
+    grazing[:3, 2] = [0.0, -1.0, 0.0]  # the floor's normal is square to the line of sight: a view along the floor
+    assert floor_end_on_bound(mask, K, grazing) == pytest.approx(1.0, abs=1e-9)
+    tilted = np.eye(4)
+    tilted[:3, 2] = [0.0, -math.sin(math.radians(30)), -math.cos(math.radians(30))]  # 30 deg from straight down
+    assert floor_end_on_bound(mask, K, tilted) == pytest.approx(math.sin(math.radians(30)), abs=1e-6)

@@ -357,6 +357,23 @@ def run_pipeline(photo: Photo, side: str, config: MeasureConfig, input: str = "a
     return _both_feet(outcomes, K, reference, side)
 
 
+def _end_on(fit) -> float:
+    """|cos| of the angle between the fitted foot's heel-to-toe axis and the line of sight to its centre."""
+    axis = fit.cam_from_foot[:3, 0]  # the foot's heel-to-toe direction in the camera frame
+    centre = fit.vertices_cam.mean(axis=0)
+    return abs(float(axis @ centre)) / float(np.linalg.norm(centre))
+
+
+def floor_end_on_bound(mask: np.ndarray, K: np.ndarray, cam_from_floor: np.ndarray) -> float:
+    """The largest |cos| between the line of sight to the silhouette's centre and any direction in the floor
+    plane: how end-on a foot lying on this floor can be seen at most (0 looking straight down, 1 along it)."""
+    ys, xs = np.nonzero(mask)
+    ray = np.linalg.solve(K, np.array([xs.mean(), ys.mean(), 1.0]))
+    ray /= np.linalg.norm(ray)
+    normal = cam_from_floor[:3, 2]
+    return math.sqrt(max(0.0, 1.0 - float(ray @ normal) ** 2))
+
+
 def _foot_of_side(feet: list[Located], side: str) -> tuple[list[Located], str]:
     """The foot of two that the networks take for ``side`` (their left/right head), and a message saying so."""
     probabilities = [foot.cues.right_probability for foot in feet]
@@ -473,6 +490,7 @@ def _measure_located(
             config=FitConfig(joint_sigma_px=joint_sigma_px(located.crop.side, config)),
         )
 
+    seen_reference = reference  # its floor's orientation stays evidence even if its scale is rejected below
     fit = fitted(None if reference is None else reference.cam_from_floor)
     low, high = config.plausible_length_mm
     length_mm = canonical_measures(fit.shape)[0] if fit.scaled else None
@@ -497,10 +515,21 @@ def _measure_located(
         reference = None
         fit = fitted(None)
     timings["fit_s"] = time.perf_counter() - t
-    axis = fit.cam_from_foot[:3, 0]  # the foot's heel-to-toe direction in the camera frame
-    centre = fit.vertices_cam.mean(axis=0)
-    end_on = abs(float(axis @ centre)) / float(np.linalg.norm(centre))
+    end_on = _end_on(fit)
     end_on_deg = math.degrees(math.acos(min(end_on, 1.0)))
+    if kind == "rgb" and seen_reference is not None and end_on > config.max_rgb_end_on:
+        # the floor the reference shows, not the fit, says how end-on a foot lying on it can be seen: from above
+        # never. A fit that says otherwise lifted the foot off that floor, as when the heel is hidden behind the
+        # leg (refitting it flat on the floor was tried: it then makes the foot up, 30+ mm short on real photos)
+        most = floor_end_on_bound(located.mask, K, seen_reference.cam_from_floor)
+        if most <= config.max_rgb_end_on:
+            raise PipelineError(
+                f"the foot could not be fitted lying on the floor that {_REFERENCE_NAMES[seen_reference.kind]} in the "
+                "photo "
+                f"shows (the fit points it {end_on_deg:.0f} deg from the line of sight; on that floor it lies at "
+                f"least {math.degrees(math.acos(most)):.0f} deg from it): the heel is probably hidden behind the "
+                "leg; photograph the foot from the side and above, with the heel in view"
+            )
     if kind == "rgb" and end_on > config.max_rgb_end_on:
         raise PipelineError(
             f"the foot is seen end-on (its length points {end_on_deg:.0f} deg from the line of sight), so its "
