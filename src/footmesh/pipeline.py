@@ -314,7 +314,7 @@ def run_pipeline(photo: Photo, side: str, config: MeasureConfig, input: str = "a
     Each foot found is measured (two when both are in view, ``locate_feet``); the result's own keys are the foot
     asked for with ``side``, else the one measured best, and ``feet`` lists every foot.
     """
-    from footmesh.cues.reference import detect_reference
+    from footmesh.cues.reference import search_reference
 
     timings = {}
     t = time.perf_counter()
@@ -333,7 +333,14 @@ def run_pipeline(photo: Photo, side: str, config: MeasureConfig, input: str = "a
     if kind == "rgb":
         feet_mask = np.any([foot.mask for foot in feet], axis=0).astype(np.uint8)
         exclude = cv2.dilate(feet_mask, np.ones((15, 15), np.uint8)) > 0
-        reference = detect_reference(rgb, K, exclude_mask=exclude)
+        searched = search_reference(rgb, K, exclude_mask=exclude)
+        reference = searched.found
+        if reference is None and searched.rejected is not None:
+            notes.append(
+                f"a sheet-like object ({100 * searched.rejected_area:.0f} % of the photo) was seen but not taken as "
+                f"the reference: {searched.rejected}; lay the sheet flat, all of it in view, its sides clear of "
+                "clothing and shadows"
+            )
     timings["reference_s"] = time.perf_counter() - t
 
     if len(feet) > 1 and side != "auto":

@@ -34,6 +34,7 @@ z = x cross y up out of the floor (towards the camera).
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 import math
 from dataclasses import dataclass
@@ -81,6 +82,10 @@ MAX_ANGLE_TOLERANCE_DEG = 6.0
 so far that a sheet could pass for a card)."""
 LOOSE_FACTOR = 3.0
 """Candidates are refined when they pass the metric test with tolerances this many times wider."""
+SHAPE_WEIGHT = 0.25
+"""Of the candidates for one object, the score loses this much per tolerance that its shape departs from the
+object's (side ratio and right angle): quads of one sheet that differ by a side caught on the leg's outline
+differ by that most."""
 MIN_SIDE_PX = 14.0
 """Shortest side (px) of an object worth measuring."""
 FIRST_RADIUS_PX = 3.0
@@ -101,11 +106,29 @@ A sheet stood on can show only 13-17 % of its far side: at 0.2, 7 of 60 sheets i
 on 180 plain guided photos."""
 OCCLUSION_MATCH = 0.35
 """Colours closer than this fraction of the change across a side count as the same colour."""
+FLOOR_MATCH = 0.5
+"""The floor beyond two sides of a sheet counts as the same floor when the colours differ by less than this
+fraction of the typical change across the sides (light falls off across a sheet; a shadow lies over a side)."""
 MAX_RESIDUAL_RATIO = 2.0
 STRAIGHT_EDGE_PX = 0.5
+STRAIGHT_EDGE_FRACTION = 0.003
 """A side's edge points may scatter about its line up to this many times the median side's residual SD, or up
-to this many px (an edge this straight is straight): a side fitted to a curved outline (the foot's, where it
-hides the sheet's side) scatters more."""
+to this many px (an edge this straight is straight), or up to this fraction of the side's length: a sheet on a
+real floor bows (curl, waves, the lens' residual distortion), and a bow of 1 % of the side (3 mm on A4's length)
+scatters 0.3 % of it about the line. A side fitted to a curved outline (the foot's, where it hides the sheet's
+side) scatters more."""
+CORNER_SPAN = 0.3
+CORNER_RADIUS_PX = (4.0, 1.5)
+MIN_CORNER_COVERAGE = 0.3
+"""A sheet's corners are placed where the stretches of its two sides nearest to each (up to this fraction of
+the side from it) meet, each side searched again there this far (px) either way of its line, then closer: paper
+on a real floor bows and waves (curl, a step on it, the lens' residual distortion), and the line through a
+whole bowed side misses its corners by several px where its middle sags. A stretch whose edge shows along less
+than this fraction of it keeps the whole side's line."""
+CORNER_MOVE_PX = 1.0
+"""A corner is placed from the stretches next to it only when that moves it this far from where the whole sides
+meet: along straight sides the whole sides fix it better (their lines' SD at a corner is a few hundredths of a
+px)."""
 CONTINUATION_SPAN = (0.05, 0.3)
 """Stretch beyond each corner, in side lengths, where the side's edge must not go on."""
 MAX_CONTINUATION = 0.5
@@ -215,13 +238,35 @@ class ReferenceObject:
         return floor
 
 
+@dataclass(frozen=True)
+class ReferenceSearch:
+    """What the search for a reference object saw: the object found (None when none is convincing) and, when none
+    was, why the most sheet-like candidate was not taken (``rejected``, in words; None when nothing looked like
+    a reference object) and how much of the photo it covered (``rejected_area``, a fraction)."""
+
+    found: ReferenceObject | None
+    rejected: str | None = None
+    rejected_area: float = 0.0
+
+
 def detect_reference(
     rgb: np.ndarray,
     K: np.ndarray,
     kinds: tuple[str, ...] | list[str] = KINDS,
     exclude_mask: np.ndarray | None = None,
 ) -> ReferenceObject | None:
-    """Find a reference object lying on the floor and the floor plane it gives; None when none is convincing.
+    """Find a reference object lying on the floor and the floor plane it gives; None when none is convincing
+    (``search_reference``'s ``found``)."""
+    return search_reference(rgb, K, kinds, exclude_mask).found
+
+
+def search_reference(
+    rgb: np.ndarray,
+    K: np.ndarray,
+    kinds: tuple[str, ...] | list[str] = KINDS,
+    exclude_mask: np.ndarray | None = None,
+) -> ReferenceSearch:
+    """Find a reference object lying on the floor and the floor plane it gives, or say why none was taken.
 
     Args:
         rgb: (H, W, 3) uint8, or float in 0..1, RGB image.
@@ -232,7 +277,8 @@ def detect_reference(
             neither supports nor contradicts a side.
 
     Returns:
-        The ``ReferenceObject``, or None: then the caller reports the result as unscaled.
+        ``ReferenceSearch``: the ``ReferenceObject`` (None: the caller reports the result as unscaled) and, when
+        none was found, the reason the largest candidate was rejected.
     """
     image = _check_image(rgb)
     K = _check_intrinsics(K)
@@ -251,19 +297,42 @@ def detect_reference(
     blurred = cv2.GaussianBlur(image, (0, 0), BLUR_SIGMA_PX)
     found, markers = _detect_marker(image, blurred, K, valid, report="marker" in kinds)
     if found is not None:
-        return found
+        return ReferenceSearch(found)
     wanted = [k for k in ("a4", "card") if k in kinds]
     if not wanted:
-        return None
+        return ReferenceSearch(None)
     # a marker's cells are rectangles too: nothing is taken from the printed sheet of any marker seen
     sheets = [(q - q.mean(axis=0)) * MARKER_SHEET_SCALE + q.mean(axis=0) for q in markers]
-    best: dict[str, tuple[float, ReferenceObject]] = {}
-    accepted: list[np.ndarray] = []  # corners already found, in canonical order
     seen: set[tuple[int, ...]] = set()  # rough quads already listed (both searches)
-    # a sheet wins over any card: once one is found, the candidates left (most of the time spent on those that
-    # are none) are not tried. Sheets with a hidden corner completed come last, only when no card was found.
     sheet_groups = _candidate_groups(blurred, K, wanted, "sheet", seen) if "a4" in wanted else []
     card_groups = _candidate_groups(blurred, K, wanted, "card", seen) if "card" in wanted else []
+    searched = _try_groups(sheet_groups, card_groups, sheets, wanted, blurred, K, valid)
+    if searched.found is not None:
+        return searched
+    if valid is not None:
+        # the mask is the silhouette network's, and on real photos it sometimes spreads over the floor and hides
+        # the sheet's sides; the sides' own tests (straight, supported, not running on) still hold without it
+        again = _try_groups(sheet_groups, card_groups, sheets, wanted, blurred, K, None)
+        if again.found is not None:
+            return again
+    return ReferenceSearch(None, searched.rejected, searched.rejected_area / (h * w))
+
+
+def _try_groups(
+    sheet_groups: list[list[np.ndarray]],
+    card_groups: list[list[np.ndarray]],
+    sheets: list[np.ndarray],
+    wanted: list[str],
+    blurred: np.ndarray,
+    K: np.ndarray,
+    valid: np.ndarray | None,
+) -> ReferenceSearch:
+    """Refine and test the rough quads of ``_candidate_groups`` in turn: the A4 sheet found, else the card, else
+    (``rejected_area`` in px here) why the largest rough quad was rejected. Quads over a marker's printed sheet
+    (``sheets``) are skipped."""
+    best: dict[str, tuple[float, ReferenceObject]] = {}
+    accepted: list[np.ndarray] = []  # corners already found, in canonical order
+    largest_rejected: list[tuple[float, str]] = []  # (area px, why) of the largest rough quad rejected
 
     def try_candidates(quads: list[np.ndarray], completed: bool = False) -> None:
         """Refine and test rough quads in turn, keeping the best-scoring object of each kind."""
@@ -273,25 +342,34 @@ def detect_reference(
                 continue
             if any(_overlaps(quad, sheet) for sheet in sheets):
                 continue
-            result = _finish(quad, wanted, blurred, K, valid, completed=completed)
+            why: list[str] = []
+            result = _finish(quad, wanted, blurred, K, valid, completed=completed, rejected=why)
             if result is None:
+                area = abs(_signed_area(quad))
+                if why and (not largest_rejected or area > largest_rejected[0][0]):
+                    largest_rejected[:] = [(area, why[0])]
                 continue
             accepted.append(_canonical(result[1].corners_px))
             score, obj = result
             if obj.kind not in best or score > best[obj.kind][0]:
                 best[obj.kind] = (score, obj)
 
+    # a sheet wins over any card: once one is found, the candidates left (most of the time spent on those that
+    # are none) are not tried. Sheets with a hidden corner completed come last, only when no card was found.
     for group in sheet_groups[:1] + card_groups:
         try_candidates(group)
         if "a4" in best:
-            return best["a4"][1]
+            return ReferenceSearch(best["a4"][1])
     if "card" in best:
-        return best["card"][1]
+        return ReferenceSearch(best["card"][1])
     for group in sheet_groups[1:]:
         try_candidates(group, completed=True)
         if "a4" in best:
-            return best["a4"][1]
-    return None
+            return ReferenceSearch(best["a4"][1])
+    if not largest_rejected:
+        return ReferenceSearch(None)
+    area, why = largest_rejected[0]
+    return ReferenceSearch(None, why, area)
 
 
 # --- input checks -------------------------------------------------------------------------------------------
@@ -945,11 +1023,16 @@ def _fit_line(edges: _SideEdges) -> _Line | None:
     resid = (pts - centroid) @ normal
     along = (pts - centroid) @ direction
     sd = max(float(np.sqrt(np.sum(resid**2) / max(len(pts) - 2, 1))), MIN_CORNER_SD_PX)
+    # neighbouring residuals are alike where the edge bows or a shadow bends it: fewer independent points
+    ordered = resid[np.argsort(along)] - resid.mean()
+    spread = float(ordered @ ordered)
+    rho = float(np.clip(ordered[:-1] @ ordered[1:] / spread, 0.0, 0.99)) if spread > 1e-12 else 0.0
+    independent = max(2.0, len(pts) * (1.0 - rho) / (1.0 + rho))
     return _Line(
         point=centroid,
         direction=direction,
-        offset_sd=sd / math.sqrt(len(pts)),
-        angle_sd=sd / math.sqrt(float(np.sum(along**2))),
+        offset_sd=sd / math.sqrt(independent),
+        angle_sd=sd / math.sqrt(float(np.sum(along**2)) * independent / len(pts)),
         support=len(pts) / (len(pts) + edges.contradicted),
         coverage=len(pts) / edges.sampled,
         residual_sd=sd,
@@ -978,6 +1061,13 @@ def _fit_sides(
         if any(ln is None for ln in lines) and sum(not _completable(ln) for ln in lines) >= 2:
             return lines + [None] * (3 - i)
     return lines
+
+
+def _curved(residual_sd: list[float] | np.ndarray, length_px: list[float] | np.ndarray) -> bool:
+    """Whether a side's edge points scatter about its line more than a straight edge's (``STRAIGHT_EDGE_PX``)."""
+    residual_sd, length_px = np.asarray(residual_sd), np.asarray(length_px)
+    limit = max(MAX_RESIDUAL_RATIO * float(np.median(residual_sd)), STRAIGHT_EDGE_PX)
+    return bool(np.any(residual_sd > np.maximum(limit, STRAIGHT_EDGE_FRACTION * length_px)))
 
 
 def _completable(line: _Line | None) -> bool:
@@ -1030,8 +1120,8 @@ def _complete_sheet(
         return []
     m = good.index(False)  # the missing side, from corner m to corner m + 1
     side = {k: lines[(m + k) % 4] for k in (1, 2, 3)}
-    residuals = [ln.residual_sd for ln in side.values()]
-    if max(residuals) > max(MAX_RESIDUAL_RATIO * float(np.median(residuals)), STRAIGHT_EDGE_PX):
+    lengths = [float(np.linalg.norm(quad[(m + k + 1) % 4] - quad[(m + k) % 4])) for k in (1, 2, 3)]
+    if _curved([ln.residual_sd for ln in side.values()], lengths):
         return []
     c2 = _intersect(side[1].point, side[1].direction, side[2].point, side[2].direction)  # corner m + 2
     c3 = _intersect(side[2].point, side[2].direction, side[3].point, side[3].direction)  # corner m + 3
@@ -1062,6 +1152,124 @@ def _complete_sheet(
     return out
 
 
+def _stretch_line(blurred: np.ndarray, p: np.ndarray, q: np.ndarray, along: np.ndarray, side: _Line) -> _Line | None:
+    """The line through the edge of ``side`` (running p -> q) at positions ``along`` (S,) px from p, searched
+    ``CORNER_RADIUS_PX`` about p -> q and then about the line found; only edges between the side's own colours
+    count. None where the edge shows along less than ``MIN_CORNER_COVERAGE`` of the stretch."""
+    line = None
+    tol = OCCLUSION_MATCH * float(np.linalg.norm(side.far - side.near))
+    for radius in CORNER_RADIUS_PX:
+        if line is not None:  # search again about the stretch's own line, through the same positions
+            start = line.point + ((p - line.point) @ line.direction) * line.direction
+            p, q = start, start + line.direction * float(np.linalg.norm(q - p))
+        # no mask: where the silhouette network spreads over the floor it would hide the corner, and the edge's
+        # colours (the side's own, paper and floor) already leave out the foot's outline
+        prof = _profiles(blurred, p, q, along, radius, None, side.min_step)
+        if prof is None:
+            return None
+        a, b = prof.ends[:, 0], prof.ends[:, 1]
+        own = prof.found & (np.linalg.norm(a - side.near, axis=1) < tol) & (np.linalg.norm(b - side.far, axis=1) < tol)
+        if own.sum() < max(5, MIN_CORNER_COVERAGE * len(along)):
+            return None
+        line = _fit_line(_SideEdges(prof.points[own], len(along), 0, side.min_step, side.near, side.far))
+        if line is None:
+            return None
+        if line.direction @ (q - p) < 0:
+            line = dataclasses.replace(line, direction=-line.direction)
+    return line
+
+
+def _corner_lines(corners: np.ndarray, lines: list[_Line], blurred: np.ndarray) -> list[tuple[_Line, _Line]]:
+    """For each corner j (4, 2) px, the lines of the stretches of side j - 1 (ending at it) and side j (starting
+    at it) nearest to it (``CORNER_SPAN``); the whole side's line where a stretch shows too little edge."""
+    out = []
+    for j in range(4):
+        pair = []
+        for i, ending in (((j - 1) % 4, True), (j, False)):
+            p, q = corners[i], corners[(i + 1) % 4]
+            length = float(np.linalg.norm(q - p))
+            near_end = np.arange(END_SKIP * length + 1.0, CORNER_SPAN * length, 1.0)
+            along = length - near_end[::-1] if ending else near_end
+            stretch = _stretch_line(blurred, p, q, along, lines[i]) if len(along) >= 6 else None
+            pair.append(stretch if stretch is not None else lines[i])
+        out.append((pair[0], pair[1]))
+    return out
+
+
+def _clean_sides(
+    corners: np.ndarray, lines: list[_Line], blurred: np.ndarray, perturbed: list[np.ndarray]
+) -> tuple[np.ndarray, list[_Line], list[np.ndarray], np.ndarray]:
+    """A sheet's sides fitted again through the edges between the paper and the floor only (``_stretch_line`` along
+    the whole side): where the leg or the foot lies over a side and the mask misses it, their outline no longer
+    pulls the line. A side that shows too little of its own edge keeps its line. Also returns (4,) the fraction
+    of each side that shows that edge (0 where too little)."""
+    # the paper's colour from all four sides (a side the leg covers has the skin's as its own)
+    inner, _ = _inner_outer(corners, lines)
+    paper = np.median(inner, axis=0)
+    centre = corners.mean(axis=0)
+    clean, shown = [], []
+    for i, ln in enumerate(lines):
+        p, q = corners[i], corners[(i + 1) % 4]
+        t = q - p
+        if (centre - p) @ np.array([-t[1], t[0]]) > 0:  # the paper lies on the +n (far) side
+            ln = dataclasses.replace(ln, far=paper)
+        else:
+            ln = dataclasses.replace(ln, near=paper)
+        length = float(np.linalg.norm(q - p))
+        along = np.arange(END_SKIP * length + 1.0, (1.0 - END_SKIP) * length - 1.0 + 1e-9, 1.0)
+        line = _stretch_line(blurred, p, q, along, ln) if len(along) >= 6 else None
+        clean.append(ln if line is None else line)
+        shown.append(0.0 if line is None else line.coverage)
+    new = _corners_from_lines([(ln.point, ln.direction) for ln in clean])
+    if new is None or np.max(np.linalg.norm(new - corners, axis=1)) > 3.0 * CORNER_RADIUS_PX[0]:
+        return corners, lines, perturbed, np.array(shown)
+    return new, clean, _perturbed_corners(clean), np.array(shown)
+
+
+def _bowed_corners(corners: np.ndarray, lines: list[_Line], blurred: np.ndarray) -> list[tuple[_Line, _Line]] | None:
+    """Each corner's pair of lines (``_corner_lines``) where a sheet's sides bow: where the stretches next to some
+    corner meet ``CORNER_MOVE_PX`` away from where the whole sides do; else None (straight sides fix the corners
+    best). A corner that did not move keeps the whole sides' lines."""
+    pairs = _corner_lines(corners, lines, blurred)
+    local = _corners_of(pairs)
+    if local is None:
+        return None
+    moved = np.linalg.norm(local - corners, axis=1)
+    if np.any(moved > 3.0 * CORNER_RADIUS_PX[0]):  # the stretches caught another edge
+        return None
+    bowed = moved > CORNER_MOVE_PX
+    if not bowed.any():
+        return None
+    return [pair if bowed[j] else (lines[(j - 1) % 4], lines[j]) for j, pair in enumerate(pairs)]
+
+
+def _corners_of(pairs: list[tuple[_Line, _Line]]) -> np.ndarray | None:
+    """(4, 2) corners where each pair of lines (``_corner_lines``) meets; None where a pair is parallel."""
+    corners = [_intersect(a.point, a.direction, b.point, b.direction) for a, b in pairs]
+    return None if any(c is None for c in corners) else np.array(corners)
+
+
+def _perturbed_corner_pairs(pairs: list[tuple[_Line, _Line]]) -> list[np.ndarray]:
+    """Corners (4, 2) with one corner's line moved by its offset SD, or turned by its angle SD: 16 quads for
+    linearised propagation (``_perturbed_corners`` for corners of their own lines)."""
+    base = _corners_of(pairs)
+    out = []
+    for j, pair in enumerate(pairs):
+        for k, ln in enumerate(pair):
+            normal = np.array([-ln.direction[1], ln.direction[0]])
+            c, s = math.cos(ln.angle_sd), math.sin(ln.angle_sd)
+            turned = np.array([c * ln.direction[0] - s * ln.direction[1], s * ln.direction[0] + c * ln.direction[1]])
+            for point, direction in ((ln.point + ln.offset_sd * normal, ln.direction), (ln.point, turned)):
+                lines = [(a.point, a.direction) for a in pair]
+                lines[k] = (point, direction)
+                corner = _intersect(*lines[0], *lines[1])
+                if corner is not None:
+                    trial = base.copy()
+                    trial[j] = corner
+                    out.append(trial)
+    return out
+
+
 def _continues(blurred: np.ndarray, quad: np.ndarray, lines: list[_Line], valid: np.ndarray | None) -> bool:
     """Whether the sides' edges run on past the corners, in line with them, at ``MIN_CONTINUATIONS`` places or more:
     the quad is then cut out of longer lines (planks, tiles, a marker's grid) and is not an object lying on the
@@ -1089,9 +1297,9 @@ def _continues(blurred: np.ndarray, quad: np.ndarray, lines: list[_Line], valid:
     return False
 
 
-def _is_paper(quad: np.ndarray, lines: list[_Line]) -> bool:
-    """A white sheet: little colour inside, and brighter inside than outside along at least three sides (the
-    colours read beyond the edges where they were found, so that the foot over the sheet does not count)."""
+def _inner_outer(quad: np.ndarray, lines: list[_Line]) -> tuple[np.ndarray, np.ndarray]:
+    """(4, 3) each: the typical colours just inside and just outside each side, read beyond its edges where they
+    were found (so that the foot over the sheet does not count)."""
     centre = quad.mean(axis=0)
     inner, outer = [], []
     for i, ln in enumerate(lines):
@@ -1100,11 +1308,37 @@ def _is_paper(quad: np.ndarray, lines: list[_Line]) -> bool:
         far_inside = (centre - quad[i]) @ n > 0
         inner.append(ln.far if far_inside else ln.near)
         outer.append(ln.near if far_inside else ln.far)
-    inner, outer = np.array(inner), np.array(outer)
+    return np.array(inner), np.array(outer)
+
+
+def _is_paper(quad: np.ndarray, lines: list[_Line]) -> bool:
+    """A white sheet: little colour inside, and brighter inside than outside along at least three sides."""
+    inner, outer = _inner_outer(quad, lines)
     paper = np.median(inner, axis=0)
     if (paper.max() - paper.min()) / max(float(paper.max()), 1e-6) > PAPER_MAX_SATURATION:
         return False
     return int(np.sum(inner.mean(axis=1) > outer.mean(axis=1) + MIN_CONTRAST / 2)) >= 3
+
+
+def _strange_borders(quad: np.ndarray, lines: list[_Line]) -> tuple[list[int], list[int]]:
+    """The sides (0..3) of a sheet that do not part the paper from the floor, and of those the ones with the
+    floor inside (placed beside the sheet, not over it).
+
+    Inside each side the paper must be brighter than what lies outside (not a line in the floor beside the
+    sheet), and what lies outside must look like the floor beyond another side (not the hem of dark trousers
+    across the sheet; where the sheet lies across two floors, a rug's edge, the sides still pair up; a shadow
+    darkens the floor less than the change across the sides)."""
+    inner, outer = _inner_outer(quad, lines)
+    change = float(np.median(np.linalg.norm(inner - outer, axis=1)))
+    floor = np.median(outer, axis=0)
+    strange, outside = [], []
+    for i in range(4):
+        darker = inner[i].mean() < outer[i].mean() + MIN_CONTRAST
+        if darker or min(np.linalg.norm(outer[i] - outer[j]) for j in range(4) if j != i) >= FLOOR_MATCH * change:
+            strange.append(i)
+            if np.linalg.norm(inner[i] - floor) < FLOOR_MATCH * change:
+                outside.append(i)
+    return strange, outside
 
 
 # --- pose and uncertainty -----------------------------------------------------------------------------------
@@ -1182,8 +1416,10 @@ def _finish(
     mirrored: bool = False,
     completed: bool = False,
     first_radius: float = FIRST_RADIUS_PX,
+    rejected: list[str] | None = None,
 ) -> tuple[float, ReferenceObject] | None:
-    """Refine a rough quad, name it, test it strictly and solve the plane: (score, object) or None.
+    """Refine a rough quad, name it, test it strictly and solve the plane: (score, object) or None (then why,
+    in words, appended to ``rejected``).
 
     A marker's quad comes in its local order (``kinds == ["marker"]``); a sheet's or card's is put in local
     order once its sides are known. A sheet whose fourth side the rough quad misses (the foot hides a corner,
@@ -1194,10 +1430,20 @@ def _finish(
     # the first pass of the sides' refinement is also what the completion starts from: fitted once for both
     first = _fit_sides(quad, blurred, valid, first_radius)
     result = _finish_quad(
-        quad, kinds, blurred, K, valid, mirrored, first=first, completed=completed, first_radius=first_radius
+        quad,
+        kinds,
+        blurred,
+        K,
+        valid,
+        mirrored,
+        first=first,
+        completed=completed,
+        first_radius=first_radius,
+        rejected=rejected,
     )
     if result is None and "a4" in kinds:
         for sheet in _complete_sheet(quad, blurred, K, valid, lines=first):
+            # the quad's own reason stands: a completion is a guess
             result = _finish_quad(sheet, ["a4"], blurred, K, valid, completed=True)
             if result is not None:
                 break
@@ -1214,32 +1460,39 @@ def _finish_quad(
     first: list[_Line | None] | None = None,
     completed: bool = False,
     first_radius: float = FIRST_RADIUS_PX,
+    rejected: list[str] | None = None,
 ) -> tuple[float, ReferenceObject] | None:
     """``_finish`` without the completion of a sheet (``first``: the sides fitted at ``first_radius``;
-    ``completed``: the quad is a sheet completed across a hidden corner)."""
+    ``completed``: the quad is a sheet completed across a hidden corner; ``rejected``: why the quad is not the
+    object, appended in words when it is not)."""
+
+    def reject(why: str) -> None:
+        if rejected is not None:
+            rejected.append(why)
+
     h, w = blurred.shape[:2]
     refined = _refine_sides(quad, blurred, valid, radii=(first_radius, 1.5), first=first)
     if refined is None:
-        return None
+        return reject("a side's edge could not be traced along it")
     corners, lines = refined
     # a marker is read by its pattern, not cut out by the border: it only has to lie in the image
     if not _inside(corners, h, w, margin=0.0 if kinds == ["marker"] else BORDER_MARGIN_PX):
-        return None
+        return reject("a corner lies on or beyond the edge of the photo")
     if min(np.linalg.norm(np.roll(corners, -1, axis=0) - corners, axis=1)) < MIN_SIDE_PX:
-        return None
+        return reject("it is too small in the photo")
     supports = np.array([ln.support for ln in lines])
     coverage = np.array([ln.coverage for ln in lines])
     residuals = np.array([ln.residual_sd for ln in lines])
     min_side_support = COMPLETED_MIN_SIDE_SUPPORT if completed else MIN_SIDE_SUPPORT
     if supports.min() < min_side_support or supports.mean() < MIN_MEAN_SUPPORT:
-        return None
+        return reject(f"a side's edge is missing along {100 * (1 - supports.min()):.0f} % of the side where it is seen")
     if coverage.min() < MIN_COVERAGE["a4"][0] or coverage.mean() < MIN_COVERAGE["a4"][1]:
-        return None
-    if residuals.max() > max(MAX_RESIDUAL_RATIO * float(np.median(residuals)), STRAIGHT_EDGE_PX):
-        return None
+        return reject(f"its sides show along only {100 * coverage.mean():.0f} % of their length (covered)")
+    if _curved(residuals, np.linalg.norm(np.roll(corners, -1, axis=0) - corners, axis=1)):
+        return reject(f"a side is not straight (scatter {residuals.max():.1f} px: curled, or a curved outline over it)")
     shape = _parallelogram(corners, K)
     if shape is None:
-        return None
+        return reject("its corners are no rectangle's image")
     perturbed = _perturbed_corners(lines)
     ratio_sd, angle_sd = _shape_sd(corners, perturbed, K)
     # small or oblique objects measure their shape less well: the tolerances widen with the corners' noise
@@ -1248,39 +1501,59 @@ def _finish_quad(
     if kinds == ["marker"]:
         kind, start = "marker", 0
         if abs(math.log(shape[0])) > tol_ratio or abs(shape[1] - 90.0) > tol_angle:
-            return None
+            return reject("its shape is not square")
     else:
         # named among both kinds, so that a sheet asked for as a card is not one
         found = _classify(corners, K, ["a4", "card"], tol_ratio=tol_ratio, tol_angle=tol_angle)
         if found is None or found[0] not in kinds:
-            return None
+            ratio, angle = max(shape[0], 1.0 / shape[0]), shape[1]
+            return reject(
+                f"its shape is neither A4's nor a card's (side ratio {ratio:.3f}, A4 1.414, card 1.586; corner angle "
+                f"{angle:.1f} deg; the photo's focal length may be wrong)"
+            )
         kind, start = found
     if coverage.min() < MIN_COVERAGE[kind][0] or coverage.mean() < MIN_COVERAGE[kind][1]:
-        return None
+        return reject(f"its sides show along only {100 * coverage.mean():.0f} % of their length (covered)")
     if start:
         corners = np.roll(corners, -start, axis=0)
         lines = lines[start:] + lines[:start]
         perturbed = [np.roll(c, -start, axis=0) for c in perturbed]
     if kind == "a4" and not _is_paper(corners, lines):
-        return None
+        return reject("it is not white paper brighter than the floor")
+    if kind == "a4":
+        strange, outside = _strange_borders(corners, lines)
+        # a completed sheet's fourth side runs where the foot hides it (its colours are the foot's), not beside it
+        if outside or len(strange) > (1 if completed else 0):
+            side = (outside or strange)[-1] + 1
+            return reject(f"its side {side} of 4 does not part the paper from the floor (clothing over it?)")
     if _continues(blurred, corners, lines, valid):
-        return None
+        return reject("its sides run on past its corners (tiles, planks or a printed grid)")
+    at_corner = [(j, ln) for i, ln in enumerate(lines) for j in (i, (i + 1) % 4)]  # each corner's two lines
+    if kind == "a4":
+        corners, lines, perturbed, coverage = _clean_sides(corners, lines, blurred, perturbed)
+    if kind == "a4" and (bowed := _bowed_corners(corners, lines, blurred)) is not None:
+        local_perturbed = _perturbed_corner_pairs(bowed)
+        local = _corners_of(bowed)
+        local_sd = _shape_sd(local, local_perturbed, K)
+        tol_ratio = min(max(ASPECT_TOLERANCE, 3.0 * local_sd[0]), MAX_ASPECT_TOLERANCE)
+        tol_angle = min(max(ANGLE_TOLERANCE_DEG, 3.0 * local_sd[1]), MAX_ANGLE_TOLERANCE_DEG)
+        if _classify(local, K, ["a4", "card"], tol_ratio=tol_ratio, tol_angle=tol_angle) == ("a4", 0):
+            corners, perturbed = local, local_perturbed
+            at_corner = [(j, ln) for j, pair in enumerate(bowed) for ln in pair]
     solved = _pose(corners, kind, K)
     if solved is None:
-        return None
+        return reject("no pose of the object fits its corners")
     pose, reproj = solved
     length, width = SIZES_MM[kind]
     distance = float(np.linalg.norm(pose[:3, :3] @ [length / 2, width / 2, 0.0] + pose[:3, 3]))
     if not DISTANCE_RANGE_MM[0] <= distance <= DISTANCE_RANGE_MM[1]:
-        return None
+        return reject(f"it would lie {distance / 1000:.2f} m from the camera")
     fit_sd = math.sqrt(sum((_distance(c, kind, K) - distance) ** 2 for c in perturbed)) / distance
     if not fit_sd <= MAX_SCALE_REL_SD:
-        return None
+        return reject(f"its corners fix the scale only to {100 * fit_sd:.1f} %")
     # a corner's SD: the two lines' offsets there (the line's offset SD at its centroid plus the angle's lever)
     corner_var = [
-        ln.offset_sd**2 + (ln.angle_sd * float(np.linalg.norm(corners[j] - ln.point))) ** 2
-        for i, ln in enumerate(lines)
-        for j in (i, (i + 1) % 4)
+        ln.offset_sd**2 + (ln.angle_sd * float(np.linalg.norm(corners[j] - ln.point))) ** 2 for j, ln in at_corner
     ]
     obj = ReferenceObject(
         kind=kind,
@@ -1293,6 +1566,12 @@ def _finish_quad(
         scale_rel_sd=math.sqrt(fit_sd**2 + SIZE_REL_SD[kind] ** 2),
         mirrored=mirrored,
     )
-    # among candidates of one kind: the best-supported, most precise, then the larger (a sheet, not part of it)
-    score = float(supports.mean() + coverage.mean()) - 10.0 * fit_sd + 1e-6 * abs(_signed_area(corners))
+    # among candidates of one kind: the best-supported (a sheet: along its paper-to-floor edges), most precise,
+    # then the larger (a sheet, not part of it)
+    # and of the quads of one object, the one most like its shape
+    final = _parallelogram(corners, K)
+    ratio_misfit = abs(math.log(max(final[0], 1.0 / final[0]) * width / length)) / tol_ratio
+    shape_misfit = ratio_misfit + abs(final[1] - 90.0) / tol_angle
+    score = float(supports.mean() + coverage.mean()) - SHAPE_WEIGHT * shape_misfit - 10.0 * fit_sd
+    score += 1e-6 * abs(_signed_area(corners))
     return score, obj

@@ -1,0 +1,123 @@
+"""The reference detector on real photos, against sheet corners marked by hand.
+
+The ground truth (``tests/data/real_a4_corners.json``) names each photo of ``../shared/real/a4/photos`` and its
+sheet's four corners in px of the photo scaled to ``MARKED_SIDE_PX`` on its longer side. Each photo is searched
+the way ``footmesh measure`` does it: at the pipeline's working size, with the first pass's foot silhouette
+(dilated) as the excluded region. Two errors are reported: the corners' distance from the marked ones (px at
+``MARKED_SIDE_PX``), and the relative error of the camera-to-sheet-centre distance against the pose the marked
+corners give, which every millimetre measured through the floor inherits. These photos are for evaluation only:
+nothing here trains or tunes on them.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+MARKED_SIDE_PX = 1600
+"""The marked corners are in px of the photo scaled to this longer side."""
+DILATE_PX = 15
+"""The foot's silhouette is dilated by this (px, working size) before it is excluded, as in the pipeline."""
+
+
+@dataclass(frozen=True)
+class RealReferenceScore:
+    """One photo: whether an A4 sheet was found (``kind`` what was, or None), its corners' errors (4,) px at
+    ``MARKED_SIDE_PX`` in the marked order, the relative error of the distance to the sheet's centre, the relative
+    SD the detector gave for its scale, why nothing was taken (``rejected``), and the seconds the search took."""
+
+    photo: str
+    kind: str | None
+    corner_errors_px: tuple[float, ...]
+    centre_distance_error: float
+    scale_rel_sd: float
+    rejected: str | None
+    seconds: float
+
+    @property
+    def found(self) -> bool:
+        """An A4 sheet was found."""
+        return self.kind == "a4"
+
+
+def read_corners(path: str | os.PathLike) -> dict[str, np.ndarray]:
+    """Photo name -> (4, 2) marked corners (px at ``MARKED_SIDE_PX``) from a ground-truth JSON file."""
+    photos = json.loads(Path(path).read_text())["photos"]
+    return {name: np.asarray(corners, dtype=np.float64).reshape(4, 2) for name, corners in photos.items()}
+
+
+def matched_corner_errors(found_px: np.ndarray, marked_px: np.ndarray) -> np.ndarray:
+    """(4,) distances from the marked corners to the found ones, over the found corners' cyclic orders either way
+    round (the detector starts where its own convention says)."""
+    orders = [np.roll(c, r, axis=0) for c in (found_px, found_px[::-1]) for r in range(4)]
+    return min((np.linalg.norm(o - marked_px, axis=1) for o in orders), key=np.max)
+
+
+def sheet_centre_distance_mm(corners_px: np.ndarray, K: np.ndarray) -> float:
+    """Camera-to-centre distance (mm) of an A4 sheet with these image corners (4, 2) in order round it, either
+    side first: the pose (IPPE) that reprojects them best."""
+    from footmesh.cues.reference import SIZES_MM
+
+    length, width = SIZES_MM["a4"]
+    rectangle = np.array([[0, 0, 0], [length, 0, 0], [length, width, 0], [0, width, 0]], dtype=np.float64)
+    best = (float("inf"), float("nan"))
+    for start in range(4):
+        image = np.roll(corners_px, -start, axis=0).reshape(4, 1, 2)
+        ok, rvec, tvec = cv2.solvePnP(rectangle, image, K, None, flags=cv2.SOLVEPNP_IPPE)
+        if not ok:
+            continue
+        projected, _ = cv2.projectPoints(rectangle, rvec, tvec, K, None)
+        reprojection = float(np.sqrt(np.mean(np.sum((projected - image) ** 2, axis=2))))
+        rotation, _ = cv2.Rodrigues(rvec)
+        centre = rotation @ [length / 2, width / 2, 0.0] + tvec.ravel()
+        best = min(best, (reprojection, float(np.linalg.norm(centre))))
+    return best[1]
+
+
+def score_photo(path: str | os.PathLike, marked_px: np.ndarray) -> RealReferenceScore:
+    """Search one photo for its reference the way the pipeline does and score it against the marked corners."""
+    import torch
+
+    from footmesh.config import MeasureConfig
+    from footmesh.cues.reference import search_reference
+    from footmesh.load import load_photo
+    from footmesh.pipeline import locate_feet, working_photo
+
+    config = MeasureConfig()
+    photo = load_photo(path)
+    rgb, _, K, to_photo = working_photo(photo, config.rgb_working_max_side)
+    with torch.inference_mode():
+        feet = locate_feet(rgb, None, K, "rgb", config)
+    feet_mask = np.any([foot.mask for foot in feet], axis=0).astype(np.uint8)
+    exclude = cv2.dilate(feet_mask, np.ones((DILATE_PX, DILATE_PX), np.uint8)) > 0
+    start = time.perf_counter()
+    searched = search_reference(rgb, K, exclude_mask=exclude)
+    seconds = time.perf_counter() - start
+    found = searched.found
+    nan4 = (float("nan"),) * 4
+    if found is None:
+        return RealReferenceScore(Path(path).name, None, nan4, float("nan"), float("nan"), searched.rejected, seconds)
+    to_marked = MARKED_SIDE_PX / max(photo.rgb.shape[:2])
+    errors = matched_corner_errors(found.corners_px * to_photo * to_marked, marked_px)
+    truth = sheet_centre_distance_mm(marked_px / (to_photo * to_marked), K)
+    return RealReferenceScore(
+        photo=Path(path).name,
+        kind=found.kind,
+        corner_errors_px=tuple(float(e) for e in errors),
+        centre_distance_error=found.object_distance_mm / truth - 1.0,
+        scale_rel_sd=found.scale_rel_sd,
+        rejected=None,
+        seconds=seconds,
+    )
+
+
+def score_set(photos_dir: str | os.PathLike, corners_json: str | os.PathLike) -> list[RealReferenceScore]:
+    """``score_photo`` of every photo the ground truth names, in name order."""
+    marked = read_corners(corners_json)
+    return [score_photo(Path(photos_dir) / name, marked[name]) for name in sorted(marked)]

@@ -1,0 +1,57 @@
+"""The reference detector on real phone photos of a foot on an A4 sheet, against corners marked by hand.
+
+The photos (``../shared/real/a4/photos``, licences in its README) are for evaluation only; the marked corners
+(``tests/data/real_a4_corners.json``) are the ground truth. The bounds are what the detector achieves (issue 19,
+docs/reference.md), with a little room: a change that loses a sheet or moves a corner fails here.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from footmesh.eval.real_reference import matched_corner_errors, read_corners, score_set, sheet_centre_distance_mm
+
+ROOT = Path(__file__).resolve().parents[2]
+PHOTOS = ROOT / ".." / "shared" / "real" / "a4" / "photos"
+CORNERS = ROOT / "tests" / "data" / "real_a4_corners.json"
+
+
+def test_the_ground_truth_names_every_photo_of_the_set():
+    marked = read_corners(CORNERS)
+    assert PHOTOS.is_dir(), f"{PHOTOS} is missing: the real photos live beside the project (../shared)"
+    assert sorted(marked) == sorted(p.name for p in PHOTOS.glob("*.jpg"))
+    for corners in marked.values():
+        assert corners.shape == (4, 2) and np.isfinite(corners).all()
+
+
+def test_corner_errors_are_matched_over_the_detectors_start_and_direction():
+    marked = np.array([[0.0, 0.0], [10.0, 0.0], [10.0, 7.0], [0.0, 7.0]])
+    found = np.roll(marked[::-1], 1, axis=0) + [0.5, 0.0]
+    assert np.allclose(matched_corner_errors(found, marked), 0.5)
+
+
+def test_thesheet_centre_distance_mm_of_a_sheet_seen_square_on():
+    """An A4 sheet 500 mm straight below the camera: its corners give that distance, whichever corner starts."""
+    K = np.array([[800.0, 0, 320], [0, 800.0, 240], [0, 0, 1]])
+    half = np.array([[-148.5, -105.0], [148.5, -105.0], [148.5, 105.0], [-148.5, 105.0]])
+    corners = half * 800.0 / 500.0 + [320.0, 240.0]
+    for start in range(4):
+        assert sheet_centre_distance_mm(np.roll(corners, start, axis=0), K) == pytest.approx(500.0, rel=1e-6)
+
+
+@pytest.mark.slow
+def test_every_real_sheet_is_found_with_its_corners_and_scale():
+    scores = score_set(PHOTOS, CORNERS)
+    assert len(scores) == 7
+    for score in scores:
+        assert score.found, f"{score.photo}: no sheet ({score.rejected})"
+        errors = np.array(score.corner_errors_px)
+        # px at 1600 on the longer side; the search runs at 640 (1 px there is 2.5 here)
+        assert np.median(errors) <= 6.0 and errors.max() <= 14.0, f"{score.photo}: corners off by {errors}"
+        assert abs(score.centre_distance_error) <= 0.006, f"{score.photo}: scale {score.centre_distance_error:+.2%}"
+        # the detector's own uncertainty covers its error
+        assert abs(score.centre_distance_error) <= 3.0 * score.scale_rel_sd
+    assert np.median([np.max(s.corner_errors_px) for s in scores]) <= 6.0
