@@ -5,7 +5,12 @@ marker). Each is given to ``detect_reference`` with the true foot silhouette (di
 the predicted one) as the excluded region. The scale error is that of the camera-to-floor distance along the
 optical axis through the object, the error every millimetre measured through the floor plane inherits.
 
-Run: ``python benchmarks/bench_reference.py [--n 60] [--size 640] [--seed 4242]``.
+Real photos beside them: the seven phone photos of a foot on an A4 sheet in ``../shared/real/a4/photos``, against
+their corners marked by hand (``tests/data/real_a4_corners.json``), searched the way ``footmesh measure`` does
+(``footmesh.eval.real_reference``): found, the corners' error (px at 1600 on the photo's longer side) and the
+error of the camera-to-sheet distance against the marked corners' pose.
+
+Run: ``python benchmarks/bench_reference.py [--n 60] [--size 640] [--seed 4242] [--real DIR]``.
 """
 
 from __future__ import annotations
@@ -13,11 +18,15 @@ from __future__ import annotations
 import argparse
 import statistics
 import time
+from pathlib import Path
 
 import cv2
 import numpy as np
 
 KINDS = ("a4", "card", "marker")
+ROOT = Path(__file__).resolve().parents[1]
+REAL_PHOTOS = ROOT / ".." / "shared" / "real" / "a4" / "photos"
+REAL_CORNERS = ROOT / "tests" / "data" / "real_a4_corners.json"
 
 
 def floor_distance_mm(normal: np.ndarray, point: np.ndarray) -> float:
@@ -76,13 +85,49 @@ def format_table(records: dict[str, list[dict]]) -> str:
     return "\n".join(lines)
 
 
+def format_real_table(photos: Path) -> str:
+    """Markdown table of the detector on the real A4 photos, one row per photo and a summary row."""
+    from footmesh.eval.real_reference import score_set
+
+    scores = score_set(photos, REAL_CORNERS)
+    lines = [
+        "| real photo | found | corner error px at 1600, median (max) | distance error % (its SD) | ms |",
+        "|---|---:|---:|---:|---:|",
+    ]
+    for s in scores:
+        if not s.found:
+            lines.append(f"| {s.photo} | no: {s.rejected} | - | - | {1000 * s.seconds:.0f} |")
+            continue
+        err = np.array(s.corner_errors_px)
+        lines.append(
+            f"| {s.photo} | yes | {np.median(err):.1f} ({err.max():.1f}) | "
+            f"{100 * s.centre_distance_error:+.2f} ({100 * s.scale_rel_sd:.2f}) | {1000 * s.seconds:.0f} |"
+        )
+    found = [s for s in scores if s.found]
+    if found:
+        worst = [max(s.corner_errors_px) for s in found]
+        distance = [abs(s.centre_distance_error) * 100 for s in found]
+        lines.append(
+            f"| **all** | **{len(found)} / {len(scores)}** | max per photo: median {statistics.median(worst):.1f} | "
+            f"abs median {statistics.median(distance):.2f} (max {max(distance):.2f}) | "
+            f"{1000 * statistics.median(s.seconds for s in scores):.0f} |"
+        )
+    return "\n".join(lines)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--n", type=int, default=60, help="photos (cycling A4, card, marker)")
     parser.add_argument("--size", type=int, default=640, help="photo side, px")
     parser.add_argument("--seed", type=int, default=4242, help="seed of the photos (eval measure's default)")
+    parser.add_argument("--real", type=Path, default=REAL_PHOTOS, help="folder of the real A4 photos")
     args = parser.parse_args()
     print(format_table(run(args.n, args.size, args.seed)))
+    print()
+    if args.real.is_dir():
+        print(format_real_table(args.real))
+    else:
+        print(f"(real photos not found at {args.real}: the synthetic table only)")
 
 
 if __name__ == "__main__":

@@ -21,11 +21,17 @@ Steps:
    precision; a robust line fit through these points and the intersections of neighbouring lines give the
    corners. The same for the marker's black square.
 5. Strict tests: right angle and side ratio (tolerances widened by the corners' own noise), every side's edge
-   present where it is not covered (the foot over a sheet may hide part of a side or a corner), straight, and
-   not running on past the corners (planks, tiles), a white sheet, inside the image; then the pose:
+   present where it is not covered (the foot over a sheet may hide part of a side or a corner), straight (as
+   straight as a real, slightly bowed sheet), and not running on past the corners (planks, tiles), a white sheet
+   whose every side parts the paper from the floor, inside the image.
+6. A sheet's sides fitted again through paper-to-floor edges only (the leg's outline left out) and, where they
+   bow, its corners placed from the stretches of the sides next to them; then the pose:
    ``cv2.solvePnP(..., SOLVEPNP_IPPE)`` on the known rectangle, floor z pointing to the camera.
-6. Uncertainty: each line's offset and angle SD from its fit residuals, pushed through intersection and PnP by
-   finite differences to the camera-to-object distance; plus the object's size tolerance.
+7. Uncertainty: each line's offset and angle SD from its fit residuals (counting their correlation along the
+   side), pushed through intersection and PnP by finite differences to the camera-to-object distance; plus the
+   object's size tolerance.
+8. Nothing found with the caller's mask: the same candidates again without it (``search_reference`` says why the
+   largest was rejected when nothing is found at all).
 
 Frames: image pixels with the centre of the top-left pixel at (0, 0); camera OpenCV (x right, y down, z forward),
 mm. The floor frame has its origin at corner 0, x along the first side (the length L), y along the width W,
