@@ -432,10 +432,11 @@ def _add_eval_commands(sub: argparse._SubParsersAction) -> None:
     meas.add_argument("--size", type=int, default=640, help="photo side, px (default 640)")
     meas.add_argument(
         "--views",
-        choices=("random", "thesis", "guided"),
+        choices=("random", "thesis", "guided", "ood"),
         default="random",
         help="camera views: random (any side and height), thesis (its 22 viewpoints), guided (as the photo guide "
-        "asks: from the side and above, foot flat on the floor)",
+        "asks: from the side and above, foot flat on the floor), ood (unlike the training renders: other fields of "
+        "view and distances, lifted and posed feet, a leg stump, re-toned skin, heavier noise)",
     )
     meas.add_argument("--seed", type=int, default=4242, help="seed of the test photos (default 4242; training: 1-3)")
     meas.add_argument("--json", help="also write per-photo records to this JSON file")

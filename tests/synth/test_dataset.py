@@ -100,3 +100,19 @@ def test_cli_preview_writes_a_sheet(tmp_path):
     from PIL import Image
 
     assert Image.open(out).size[0] > 48
+
+
+def test_a_dataset_made_before_a_config_field_existed_resumes(tmp_path):
+    """A field added to ``SynthConfig`` later, at its default, renders what an older dataset was made with: its
+    meta.json (without the field) still matches, and a non-default value is still refused."""
+    import json
+
+    ds.generate(tmp_path, 3, seed=1, config=CONFIG, progress=False, chunk=2)
+    meta_path = tmp_path / "meta.json"
+    meta = json.loads(meta_path.read_text())
+    del meta["config"]["rgb_noise_sd"]
+    meta_path.write_text(json.dumps(meta))
+    assert ds.generate(tmp_path, 3, seed=1, config=CONFIG, progress=False, chunk=2) == []
+    noisier = SynthConfig(size=48, rgb_noise_sd=0.02)
+    with pytest.raises(ValueError, match="other settings"):
+        ds.generate(tmp_path, 3, seed=1, config=noisier, progress=False, chunk=2)

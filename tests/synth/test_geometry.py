@@ -137,3 +137,25 @@ def test_guided_views_see_the_foot_from_the_side_and_flat_on_the_floor():
         assert not bool(s["lifted"])
     with pytest.raises(ValueError, match="azimuths"):
         SynthConfig(min_azimuth_deg=150.0, max_azimuth_deg=140.0)
+
+
+def test_ood_views_are_unlike_the_training_ones():
+    """The out-of-distribution eval's scenes (``ood_view_config``): lifted feet, short leg stumps, every skin
+    re-toned, and four times the sensor noise on a flat floor patch."""
+    from footmesh.synth.render import Renderer
+    from footmesh.synth.scene import SynthConfig, ood_view_config
+
+    config = ood_view_config(size=48, reference="none")
+    scenes = [Renderer(config).scene(7, i) for i in range(40)]
+    assert 0.2 < np.mean([s.lifted for s in scenes]) < 0.8
+    assert all(s.skin_tone is not None for s in scenes)
+    assert max(s.leg_top_mm for s in scenes) <= 260.0
+    assert min(s.fov_deg for s in scenes) < 50.0 < 90.0 < max(s.fov_deg for s in scenes)
+    # the same scene with the training noise and with the eval's: the difference is the added noise
+    plain = Renderer(SynthConfig(size=48, reference="none", rgb_noise_sd=0.0)).render(7, 0)["rgb"]
+    for noise, lo, hi in ((1.5 / 255, 0.5, 3.0), (6.0 / 255, 4.0, 8.0)):
+        noisy = Renderer(SynthConfig(size=48, reference="none", rgb_noise_sd=noise)).render(7, 0)["rgb"]
+        sd = float(np.std(noisy.astype(np.float64) - plain))
+        assert lo < sd < hi, (noise * 255, sd)
+    with pytest.raises(ValueError, match="rgb_noise_sd"):
+        SynthConfig(rgb_noise_sd=-0.1)

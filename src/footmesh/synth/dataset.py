@@ -112,6 +112,10 @@ def check_meta(out: Path, meta: dict) -> None:
     if path.is_file():
         old = json.loads(path.read_text())
         old_cmp = {k: v for k, v in old.items() if k != "version"}
+        # a field added to SynthConfig since, at its default, renders what the dataset was made with
+        defaults = json.loads(json.dumps(asdict(SynthConfig())))
+        added = {k: v for k, v in defaults.items() if k not in old_cmp["config"]}
+        old_cmp["config"] = {**old_cmp["config"], **added}
         if json.loads(json.dumps(meta)) != old_cmp:
             raise ValueError(f"{out} holds a dataset made with other settings ({path}); use another --out")
         return

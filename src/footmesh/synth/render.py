@@ -15,7 +15,7 @@ Image formation (per sample; the per-sample and per-pixel loops are compiled wit
    drawn only when the camera is above it. Rays missing the floor within ``FAR_MM`` see a plain wall (depth 0).
    ``kernels.floor_shade`` does all of it per pixel centre, skipping the texture where the mesh hides the pixel
    and its neighbours (``kernels.floor_needed``); the shadow maps are rasterised and blurred first.
-5. Sensor noise: RGB gets Gaussian noise of ``RGB_NOISE`` (0..1 units); depth gets ``depth_noise``.
+5. Sensor noise: RGB gets Gaussian noise of ``SynthConfig.rgb_noise_sd`` (0..1 units); depth gets ``depth_noise``.
 """
 
 from __future__ import annotations
@@ -53,7 +53,6 @@ DEPTH_EDGE_JUMP = (10.0, 0.03)
 """A pixel is on a depth edge when a 4-neighbour differs by more than max(10 mm, 3 % of its depth)."""
 DEPTH_EDGE_DROPOUT = 0.6
 DEPTH_RANDOM_DROPOUT = 0.002
-RGB_NOISE = 1.5 / 255
 JOINT_VISIBILITY_MARGIN_MM = 10.0
 """A joint is visible when, within one pixel of its projection, the front surface is the foot and no more than
 (the joint's distance to the nearest vertex + this margin) in front of it. Inner joints lie under the skin."""
@@ -268,7 +267,7 @@ class Renderer:
         rays = pix @ np.linalg.inv(k).T @ rot  # scene-frame directions with camera z = 1
         floor_rgb, floor_depth, ref_hit = self._floor(scene, geo, eye, rays, kernels.floor_needed(frag.face))
         rgb = kernels.compose(frag.face, frag.bary, faces, v_colour, floor_rgb.reshape(size, size, 3))
-        rgb = rgb + rng.normal(0.0, RGB_NOISE, rgb.shape)
+        rgb = rgb + rng.normal(0.0, self.config.rgb_noise_sd, rgb.shape)
         rgb = np.clip(np.round(rgb * 255.0), 0, 255).astype(np.uint8)
 
         # labels at pixel centres (odd samples)

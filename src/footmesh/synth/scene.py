@@ -80,6 +80,8 @@ class SynthConfig:
     """Share of samples showing the other foot and leg beside the first (both labelled foot; joints of the first)."""
     first_person_fraction: float = 0.0
     """Share of random views taken from above and behind the heels, down the legs (they replace the view drawn)."""
+    rgb_noise_sd: float = 1.5 / 255
+    """SD of the Gaussian sensor noise added to RGB (0..1 units)."""
     frame_reference: bool = False
     """True: random views frame the foot and the reference object together, like a whole photo taken as the photo
     guide asks (a reference half out of frame cannot give the scale; ``eval measure``, the bundled examples).
@@ -99,6 +101,8 @@ class SynthConfig:
                 raise ValueError(f"{name} must be in 0..1, got {getattr(self, name)}")
         if self.reference not in REFERENCE_CHOICES:
             raise ValueError(f"reference must be one of {REFERENCE_CHOICES}, got {self.reference!r}")
+        if not 0.0 <= self.rgb_noise_sd <= 0.5:
+            raise ValueError(f"rgb_noise_sd must be in 0..0.5, got {self.rgb_noise_sd}")
 
 
 @dataclass(frozen=True)
@@ -189,6 +193,28 @@ def guided_view_config(**fields) -> SynthConfig:
         frame_reference=True,
     )
     return SynthConfig(**{**guided, **fields})
+
+
+def ood_view_config(**fields) -> SynthConfig:
+    """Scenes deliberately unlike the training ones (issue 19's out-of-distribution eval): phones' tele and
+    ultra-wide fields of view, nearer and farther cameras, any side and height up to straight down, more roll,
+    feet lifted and posed by IK half of the time, a short leg stump (150 mm above the ankle), every skin re-toned
+    (light to dark), the other foot in view, and four times the sensor noise; the reference object in view."""
+    ood = dict(
+        fov_deg=(35.0, 100.0),
+        distance_mm=(200.0, 1100.0),
+        max_azimuth_deg=180.0,
+        elevation_deg=(10.0, 89.0),
+        roll_deg=30.0,
+        lifted_fraction=0.5,
+        ik_fraction=0.5,
+        retone_fraction=1.0,
+        leg_top_mm=(150.0, 260.0),
+        other_foot_fraction=0.3,
+        rgb_noise_sd=6.0 / 255,
+        frame_reference=True,
+    )
+    return SynthConfig(**{**ood, **fields})
 
 
 def sample_scene(seed: int, index: int, config: SynthConfig, num_components: int) -> Scene:
