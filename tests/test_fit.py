@@ -360,3 +360,16 @@ def test_foot_shown_is_the_share_of_the_fitted_foot_on_the_silhouette():
     heel_hidden[:, :320] = False  # the heel half (x < 0 in the image) hidden by the leg
     assert 0.3 < foot_shown(cam, "left", heel_hidden, K) < 0.7
     assert projected_mask(cam - [0, 0, 600.0], model.faces("left").numpy(), K, (480, 640)) is None
+
+
+def test_joints_collapsed_onto_one_point_still_give_a_fit(scenes):
+    """A tiny or degenerate foot (seen by the out-of-distribution eval): all 2D joints within a fraction of a pixel
+    of each other make OpenCV's SQPnP assert on their spread; the fit starts from its other placements instead
+    of failing as an internal error."""
+    sample = scenes[0]
+    cues = synthetic_cues(sample, joint_noise_px=0.0, rng=0)
+    centre = cues.joints2d_px.mean(axis=0)
+    joints = (centre + np.random.default_rng(0).normal(0.0, 1e-4, cues.joints2d_px.shape)).astype(np.float32)
+    cues = Cues(cues.silhouette, joints, cues.joint_confidence, "rgb")
+    fit = fit_foot(cues, sample["K"], side=_side(sample), config=FitConfig(stages=(("rigid", 2), ("full", 2))))
+    assert np.isfinite(fit.vertices_cam).all()

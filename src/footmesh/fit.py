@@ -1186,18 +1186,24 @@ def _pnp_candidates(ev: _Evidence, rest_joints: np.ndarray) -> list[tuple[np.nda
     for use in subsets:
         if len(use) >= 5:
             obj, img = rest_joints[use].astype(np.float64), ev.joints[use].astype(np.float64)
-            ok, rvec, tvec = cv2.solvePnP(obj, img, ev.K, None, flags=cv2.SOLVEPNP_SQPNP)
+            try:
+                ok, rvec, tvec = cv2.solvePnP(obj, img, ev.K, None, flags=cv2.SOLVEPNP_SQPNP)
+            except cv2.error:  # joints all but on one point (SQPnP asserts on their spread): no placement
+                continue
             add(ok, rvec, tvec, use)
     use = usable
-    ok, rvec, tvec, _ = cv2.solvePnPRansac(
-        rest_joints[use].astype(np.float64),
-        ev.joints[use].astype(np.float64),
-        ev.K,
-        None,
-        reprojectionError=PNP_RANSAC_PX,
-        iterationsCount=100,
-        flags=cv2.SOLVEPNP_EPNP,
-    )
+    try:
+        ok, rvec, tvec, _ = cv2.solvePnPRansac(
+            rest_joints[use].astype(np.float64),
+            ev.joints[use].astype(np.float64),
+            ev.K,
+            None,
+            reprojectionError=PNP_RANSAC_PX,
+            iterationsCount=100,
+            flags=cv2.SOLVEPNP_EPNP,
+        )
+    except cv2.error:
+        ok, rvec, tvec = False, None, None
     add(ok, rvec, tvec, use)
     if not found:
         # a frontal placement at the distance that matches the joints' spread in the image

@@ -17,6 +17,7 @@ import json
 import logging
 import shutil
 import tempfile
+import threading
 from collections.abc import AsyncIterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -49,6 +50,8 @@ TEMPLATE_DIR = HERE / "templates"
 MEASURE_PATH = "/api/measure"
 SWEEP_INTERVAL_S = 60.0
 RETRY_AFTER_S = 10
+DISCONNECT_POLL_S = 0.5
+"""How often a request waiting for its measurement looks whether its client is still there (s)."""
 MEDIA_TYPES = {
     ".json": "application/json",
     ".obj": "model/obj",
@@ -121,7 +124,12 @@ def create_app(measure: MeasureFn | None = None, settings: WebSettings | None = 
         docs_url=None,  # served below from the vendored Swagger UI: no CDN at run time
         redoc_url=None,
     )
-    app.add_middleware(BodyLimit, max_bytes=settings.max_upload_bytes, paths=(MEASURE_PATH,))
+    app.add_middleware(
+        BodyLimit,
+        max_bytes=settings.max_upload_bytes,
+        paths=(MEASURE_PATH,),
+        idle_timeout_s=settings.upload_idle_timeout_s,
+    )
     app.add_middleware(HostGuard, allowed_hosts=settings.allowed_hosts)
     app.add_middleware(SecurityHeaders)
     app.mount("/static", StaticFiles(directory=STATIC_DIR), name="static")
@@ -185,8 +193,16 @@ def create_app(measure: MeasureFn | None = None, settings: WebSettings | None = 
             if isinstance(exc, uploads.UploadError):
                 raise HTTPException(exc.status, str(exc)) from None
             raise
+        cancelled = threading.Event()
+        running = asyncio.ensure_future(web.runner.run(job, cancelled))  # deletes `work` when the job has ended
         try:
-            rid, _ = await web.runner.run(job)  # deletes `work` when the job has ended
+            while not (await asyncio.wait({running}, timeout=DISCONNECT_POLL_S))[0]:
+                if await request.is_disconnected():
+                    # nobody will get the answer: stop the job and free its place (issue 23, row 19)
+                    cancelled.set()
+                    running.add_done_callback(_consume)
+                    return Response(status_code=499)
+            rid, _ = running.result()
         except JobError as exc:
             headers = {"Retry-After": str(RETRY_AFTER_S)} if exc.status == 503 else None
             raise HTTPException(exc.status, str(exc), headers=headers) from None
@@ -302,22 +318,34 @@ def _add_error_handlers(app: FastAPI) -> None:
         return JSONResponse({"detail": detail, "errors": jsonable_encoder(errors)}, status_code=status)
 
 
+def _consume(task: asyncio.Future) -> None:
+    """Retrieve a cancelled request's job outcome, so that asyncio does not log it as never retrieved."""
+    if not task.cancelled():
+        task.exception()
+
+
 class _TooLarge(Exception):
+    pass
+
+
+class _Stalled(Exception):
     pass
 
 
 class BodyLimit:
     """ASGI middleware: refuse request bodies over ``max_bytes`` on ``paths`` with 413, counting as they arrive,
-    and with 503 before reading any when the job queue is full.
+    with 408 when the body stops arriving for ``idle_timeout_s``, and with 503 before reading any when the job
+    queue is full.
 
     A declared Content-Length over the limit is refused before anything is read; a body that turns out larger
     (chunked, or a lying header) stops being read at the limit and the app's answer is replaced by the 413.
     """
 
-    def __init__(self, app: ASGIApp, max_bytes: int, paths: tuple[str, ...]) -> None:
+    def __init__(self, app: ASGIApp, max_bytes: int, paths: tuple[str, ...], idle_timeout_s: float = 30.0) -> None:
         self.app = app
         self.max_bytes = max_bytes
         self.paths = paths
+        self.idle_timeout_s = idle_timeout_s
 
     async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
         if scope["type"] != "http" or scope["path"] not in self.paths:
@@ -333,14 +361,22 @@ class BodyLimit:
             await _plain_error(send, 503, detail, [(b"retry-after", str(RETRY_AFTER_S).encode())])
             return
         received = 0
-        exceeded = False
+        exceeded = stalled = False
         started = False
+        body_done = False
 
         async def limited_receive() -> Message:
-            nonlocal received, exceeded
-            message = await receive()
+            nonlocal received, exceeded, stalled, body_done
+            if body_done:  # only the disconnect is left to wait for, as long as it takes
+                return await receive()
+            try:
+                message = await asyncio.wait_for(receive(), self.idle_timeout_s)
+            except TimeoutError:
+                stalled = True
+                raise _Stalled from None
             if message["type"] == "http.request":
                 received += len(message.get("body", b""))
+                body_done = not message.get("more_body", False)
                 if received > self.max_bytes:
                     exceeded = True
                     raise _TooLarge
@@ -348,17 +384,20 @@ class BodyLimit:
 
         async def guarded_send(message: Message) -> None:
             nonlocal started
-            if exceeded:
-                return  # whatever the app makes of the broken body, the answer is 413
+            if exceeded or stalled:
+                return  # whatever the app makes of the broken body, the answer is 413 / 408
             started = started or message["type"] == "http.response.start"
             await send(message)
 
         try:
             await self.app(scope, limited_receive, guarded_send)
-        except _TooLarge:
+        except (_TooLarge, _Stalled):
             pass
         if exceeded and not started:
             await self._refuse(send)
+        elif stalled and not started:
+            detail = f"the upload stalled (nothing arrived for {self.idle_timeout_s:g} s)"
+            await _plain_error(send, 408, detail, [(b"connection", b"close")])
 
     async def _refuse(self, send: Send) -> None:
         detail = f"the upload is larger than the limit of {uploads.format_bytes(self.max_bytes)}"

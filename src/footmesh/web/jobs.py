@@ -12,6 +12,7 @@ import asyncio
 import logging
 import multiprocessing
 import shutil
+import threading
 import time
 import traceback
 from collections import deque
@@ -32,6 +33,8 @@ MeasureFn = Callable[..., dict]
 PIPELINE_MODULE = "footmesh.pipeline"
 EXIT_WAIT_S = 5.0
 KILL_GRACE_S = 10.0
+CANCEL_POLL_S = 0.25
+"""How often a job in its own process looks whether its client has gone (s)."""
 """In process isolation the worker kills the job at the time limit; the request gives up this much later."""
 
 
@@ -78,6 +81,12 @@ class BadInput(JobError):
 
 class Crashed(JobError):
     status = 500
+
+
+class Cancelled(JobError):
+    """The client went away before its answer: the job was stopped (process isolation) or its result dropped."""
+
+    status = 499
 
 
 class PipelineMissing(JobError):
@@ -200,8 +209,10 @@ class JobRunner:
         """No room for another measurement: ``workers`` running and ``queue`` waiting."""
         return self._admitted >= self.settings.workers + self.settings.queue
 
-    async def run(self, job: Job) -> tuple[str, dict]:
+    async def run(self, job: Job, cancelled: threading.Event | None = None) -> tuple[str, dict]:
         """Measure ``job``; returns (result id in the store, result dict). Always deletes ``job.work_dir``.
+        ``cancelled``: set when nobody waits for the answer any more (the client disconnected): a job in its own
+        process is killed, one in a thread ends but its result is not stored, and the queue place is freed.
 
         Raises:
             Busy: no room in the queue, or no worker came free within ``queue_wait_s``.
@@ -225,7 +236,7 @@ class JobRunner:
             _remove(job.work_dir)
             raise Busy(f"no worker came free within {s.queue_wait_s:.0f} s; try again later")
         self._running += 1
-        future = asyncio.get_running_loop().run_in_executor(self._pool, self._execute, job)
+        future = asyncio.get_running_loop().run_in_executor(self._pool, self._execute, job, cancelled)
         future.add_done_callback(self._finished)
         limit = s.time_limit_s + (KILL_GRACE_S if self._ctx is not None else 0.0)
         try:
@@ -240,7 +251,7 @@ class JobRunner:
         self._admitted -= 1
         self._slots.release()
 
-    def _execute(self, job: Job) -> tuple[str, dict]:
+    def _execute(self, job: Job, cancelled: threading.Event | None = None) -> tuple[str, dict]:
         """In a worker thread: measure, store the result files, delete the request's folder."""
         start = time.perf_counter()
         try:
@@ -251,14 +262,17 @@ class JobRunner:
                     kind, message = _classify(exc)
                     _raise(kind, message)
             else:
-                result = self._run_in_process(job)
+                result = self._run_in_process(job, cancelled)
+            if cancelled is not None and cancelled.is_set():
+                log.info("dropped the result of %s: the client went away", job.image.name)
+                raise Cancelled("the client went away before the answer")
             rid = self.store.add(result, job.out_dir)
             log.info("measured %s in %.2f s: result %s", job.image.name, time.perf_counter() - start, rid)
             return rid, result
         finally:
             _remove(job.work_dir)
 
-    def _run_in_process(self, job: Job) -> dict:
+    def _run_in_process(self, job: Job, cancelled: threading.Event | None = None) -> dict:
         receiver, sender = self._ctx.Pipe(duplex=False)
         proc = self._ctx.Process(target=_child_main, args=(self.measure, job, sender), name="footmesh-measure")
         proc.daemon = True
@@ -266,8 +280,12 @@ class JobRunner:
         sender.close()  # only the child writes; EOF on our end then means the child is gone
         answered = False
         try:
-            if not receiver.poll(self.settings.time_limit_s):
-                raise TimedOut(f"the measurement took longer than the limit of {self.settings.time_limit_s:g} s")
+            deadline = time.monotonic() + self.settings.time_limit_s
+            while not receiver.poll(min(CANCEL_POLL_S, max(deadline - time.monotonic(), 0.0))):
+                if cancelled is not None and cancelled.is_set():
+                    raise Cancelled("the client went away before the answer")  # the finally kills the child
+                if time.monotonic() >= deadline:
+                    raise TimedOut(f"the measurement took longer than the limit of {self.settings.time_limit_s:g} s")
             try:
                 kind, payload = receiver.recv()
             except EOFError:

@@ -33,6 +33,9 @@ class WebSettings:
         work_dir: parent of the server's temporary folders (uploads, results); None: the system's temp folder.
         preload: modules the forkserver imports once, besides the measure function's own, so that each job
             starts in milliseconds instead of importing torch (process isolation).
+        upload_idle_timeout_s: longest pause while a request's body arrives; longer -> 408 and the connection
+            closed (a body sent a byte at a time holds a connection; the headers have their own time-out, see
+            ``footmesh.web.server``).
         allowed_hosts: the names this server answers to in the ``Host`` header (others get 400: a web page
             elsewhere cannot reach it by DNS rebinding); a form post whose ``Origin`` is another host gets 403
             (cross-site request forgery). ``"*"`` answers any host.
@@ -50,6 +53,7 @@ class WebSettings:
     isolation: Isolation = "process"
     work_dir: Path | None = None
     preload: tuple[str, ...] = ("footmesh.model.layer", "footmesh.measure", "footmesh.report", "trimesh", "PIL.Image")
+    upload_idle_timeout_s: float = 30.0
     allowed_hosts: tuple[str, ...] = LOCAL_HOSTS
 
     def __post_init__(self) -> None:
@@ -62,6 +66,7 @@ class WebSettings:
             "queue_wait_s": self.queue_wait_s,
             "result_ttl_s": self.result_ttl_s,
             "max_results": self.max_results,
+            "upload_idle_timeout_s": self.upload_idle_timeout_s,
         }
         for name, value in positive.items():
             if not value > 0:

@@ -110,8 +110,9 @@ def check_photo(path: Path, max_pixels: int) -> CheckedFile:
     Renames the file to the suffix of its real format. Raises ``UploadError`` 415 (not an accepted image),
     413 (too many pixels) or 400 (corrupt or truncated).
     """
-    if heif.is_heif(_head(path)):
-        heif.register()
+    # always: PIL tries every format named, HEIF too when a corrupt JPEG fails, and an unregistered one raises
+    # KeyError (a corrupt JPEG got 500 from a server that had not read a HEIC yet)
+    heif.register()
     kind, width, height = _check_image(path, PHOTO_FORMATS, max_pixels, "photo", PHOTO_KINDS)
     return CheckedFile(_rename(path, PHOTO_FORMATS[kind]), kind, width, height)
 
