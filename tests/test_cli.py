@@ -68,3 +68,22 @@ def test_an_internal_failure_is_one_line_exit_1_and_a_log_file(monkeypatch, caps
     log = Path(err.rsplit("details in ", 1)[1].strip())
     assert type(failure).__name__ in log.read_text() and "Traceback" in log.read_text()
     log.unlink()
+
+
+def test_a_bad_input_is_refused_before_the_pipeline_loads(tmp_path):
+    """A corrupt photo is refused from its bytes alone: torch and the networks are not imported for it (they take
+    seconds; issue 23 row 17)."""
+    import subprocess
+    import sys
+
+    bad = tmp_path / "photo.jpg"
+    bad.write_bytes(b"not a photo at all")
+    code = (
+        "import sys\n"
+        "from footmesh.cli import main\n"
+        f"rc = main(['measure', {str(bad)!r}, '--out', {str(tmp_path / 'out')!r}])\n"
+        "print('RC', rc, 'TORCH', 'torch' in sys.modules)\n"
+    )
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert "RC 2 TORCH False" in done.stdout, done.stdout + done.stderr
+    assert done.stderr.count(str(bad)) == 1 and "not an image" in done.stderr

@@ -7,12 +7,13 @@ import json
 import logging
 import os
 import sys
+import time
 from collections.abc import Sequence
 from pathlib import Path
 
 from footmesh import __version__
-from footmesh.load import LoadError
-from footmesh.pipeline import PipelineError, measure_photo, request_options
+from footmesh.load import LoadError, load_photo
+from footmesh.report import request_options
 
 log = logging.getLogger("footmesh.measure")
 
@@ -111,24 +112,23 @@ def measure_batch(
         if intrinsics:
             k = intrinsics[0] if len(intrinsics) == 1 else intrinsics[i]
         depth = depths[i] if depths else None
-        previous = _done(folder, _wanted(image, depth, k, request_options(side, depth_unit, "auto", embedded_depth)))
+        request = request_options(side, depth_unit, "auto", embedded_depth)
+        previous = _done(folder, _wanted(image, depth, k, request))
         if previous is not None:
             log.info("%s: already measured in %s (delete it to measure again)", image, folder)
             results.append((image, previous, None))
             continue
         try:
-            result = measure_photo(
-                image,
-                folder,
-                depth=depth,
-                depth_unit=depth_unit,
-                intrinsics=k,
-                side=side,
-                embedded_depth=embedded_depth,
-            )
+            start = time.perf_counter()
+            # the inputs are checked before the pipeline (torch, the networks) is imported: a bad file is refused
+            # in a fraction of a second, not after seconds of loading
+            photo = load_photo(image, depth=depth, depth_unit=depth_unit, intrinsics=k, embedded_depth=embedded_depth)
+            from footmesh.pipeline import measure_loaded_photo
+
+            result = measure_loaded_photo(photo, folder, request, started=start)
             results.append((image, result, None))
             log.info("%s: %s", image, _one_line(result))
-        except (PipelineError, LoadError, FileNotFoundError, ValueError) as exc:
+        except (LoadError, FileNotFoundError, ValueError) as exc:  # PipelineError is a ValueError
             results.append((image, None, str(exc)))
             print(f"footmesh: error: {_naming(image, str(exc))}", file=sys.stderr)
         except OSError as exc:  # writing the results (disk full, permissions changed): the rest can still be done

@@ -29,6 +29,7 @@ from footmesh.load import Photo, load_photo
 from footmesh.measure import MEASUREMENT_NAMES, FootLandmarks, Measurements, measure_foot
 from footmesh.model import skeleton as sk
 from footmesh.model.layer import default_model
+from footmesh.report import request_options
 from footmesh.sizes import shoe_sizes
 
 log = logging.getLogger("footmesh.pipeline")
@@ -278,21 +279,34 @@ def measure_photo(
     ``rgbd``, ``depth`` (the depth map alone; the photo only serves for the overlay). ``embedded_depth``: use a
     metric depth map stored inside the photo (iPhone HEIC, Android depth JPEG) when no ``depth`` is given.
     """
-    config = config or MeasureConfig()
     if side not in ("left", "right", "auto"):
         raise PipelineError(f"side must be left, right or auto, got {side!r}")
     start = time.perf_counter()
     photo = load_photo(image, depth=depth, depth_unit=depth_unit, intrinsics=intrinsics, embedded_depth=embedded_depth)
+    request = request_options(side, depth_unit, input, embedded_depth)
+    return measure_loaded_photo(photo, out_dir, request, config, started=start)
+
+
+def measure_loaded_photo(
+    photo: Photo,
+    out_dir: str | os.PathLike,
+    request: dict[str, str | bool],
+    config: MeasureConfig | None = None,
+    started: float | None = None,
+) -> dict:
+    """``measure_photo`` of a photo already loaded (``load_photo``; its inputs checked before torch loads), with
+    the options ``request`` (``report.request_options``); ``started``: ``time.perf_counter()`` when its loading
+    began, for the result's ``seconds``."""
+    config = config or MeasureConfig()
+    start = time.perf_counter() if started is None else started
+    side, input = str(request["side"]), str(request["input"])
+    if side not in ("left", "right", "auto"):
+        raise PipelineError(f"side must be left, right or auto, got {side!r}")
     result, files = run_pipeline(photo, side, config, input)
-    result["request"] = request_options(side, depth_unit, input, embedded_depth)
+    result["request"] = request
     result["seconds"] = round(time.perf_counter() - start, 3)
     write_outputs(Path(out_dir), result, files)
     return result
-
-
-def request_options(side: str, depth_unit: str, input: str, embedded_depth: bool = True) -> dict[str, str | bool]:
-    """The options of a measurement that change its result besides the input files (``result["request"]``)."""
-    return {"side": side, "depth_unit": depth_unit, "input": input, "embedded_depth": embedded_depth}
 
 
 @dataclass

@@ -79,3 +79,8 @@ def _to_builtin(value: Any) -> Any:
     if hasattr(value, "to_dict"):
         return value.to_dict()
     raise TypeError(f"cannot write {type(value).__name__} to JSON")
+
+
+def request_options(side: str, depth_unit: str, input: str, embedded_depth: bool = True) -> dict[str, str | bool]:
+    """The options of a measurement that change its result besides the input files (``result["request"]``)."""
+    return {"side": side, "depth_unit": depth_unit, "input": input, "embedded_depth": embedded_depth}
