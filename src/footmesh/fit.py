@@ -1116,11 +1116,12 @@ class _SideProblem:
         weight = np.maximum(ev.joint_weight, 1e-9)
         inside = res["inside"][0].numpy() * cfg.silhouette_sigma_px if "inside" in res else np.zeros(0)
         out = {
-            "contour_within_2px": float(np.mean(contour <= 2.0)),
+            # no outline point associated at all (a fit far off the silhouette): none of it follows the outline
+            "contour_within_2px": float(np.mean(contour <= 2.0)) if contour.size else 0.0,
             "vertices_outside_2px": float(np.sum(inside > 2.0) / len(self.arrays.subset)),
             "joint_error_px": float(np.sum(weight * joints) / np.sum(weight)),
         }
-        if "depth" in res:
+        if "depth" in res and res["depth"][0].numel():
             out["depth_median_mm"] = float(np.median(np.abs(res["depth"][0].numpy()))) * cfg.depth_sigma_mm
         return out
 

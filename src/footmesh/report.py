@@ -5,6 +5,7 @@ from __future__ import annotations
 import contextlib
 import io
 import json
+import math
 import os
 import tempfile
 import zipfile
@@ -30,9 +31,25 @@ def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
         Path(tmp).unlink(missing_ok=True)
 
 
+def _non_finite(data: Any, where: str = "") -> str | None:
+    """The key path of the first NaN or infinity in nested dicts and lists, or None."""
+    if isinstance(data, float) and not math.isfinite(data):
+        return where or "(the value)"
+    items = data.items() if isinstance(data, dict) else enumerate(data) if isinstance(data, list | tuple) else ()
+    for key, value in items:
+        found = _non_finite(value, f"{where}.{key}" if isinstance(key, str) else f"{where}[{key}]")
+        if found is not None:
+            return found
+    return None
+
+
 def write_json(path: str | os.PathLike, data: dict[str, Any]) -> None:
-    """Write ``data`` as indented JSON (NaN is refused: missing values must be null)."""
-    text = json.dumps(data, indent=2, allow_nan=False, default=_to_builtin) + "\n"
+    """Write ``data`` as indented JSON. NaN is refused (missing values must be null) as a fault of the program,
+    never of the input: ``RuntimeError`` naming the key (a ``ValueError`` would be reported as bad input)."""
+    try:
+        text = json.dumps(data, indent=2, allow_nan=False, default=_to_builtin) + "\n"
+    except ValueError as exc:
+        raise RuntimeError(f"{path}: {exc} (at {_non_finite(data)})") from None
     with atomic_path(path) as tmp:
         tmp.write_text(text)
 

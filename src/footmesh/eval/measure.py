@@ -26,6 +26,7 @@ import cv2
 import numpy as np
 import torch
 
+from footmesh.config import MeasureConfig
 from footmesh.eval import thesis
 from footmesh.measure import FootLandmarks, measure_foot
 from footmesh.model.layer import default_model
@@ -62,6 +63,9 @@ class Record:
     """The fit's final cost (result.json ``fit.loss``): how well the model explains the photo."""
     fit_quality: dict[str, float] = field(default_factory=dict)
     """result.json ``fit.quality``: contour within 2 px, model outside, joint error, depth residual."""
+    view_angle_deg: float = math.nan
+    """The true angle between the foot's heel-to-toe axis and the line of sight to its middle (0: end-on, 90: seen
+    from the side or from above), from the render."""
 
 
 @dataclass
@@ -160,10 +164,25 @@ def _write_heic_inputs(sample: dict, folder: Path) -> dict:
     return {**paths, "image": folder / "photo.heic"}
 
 
+def view_angle_deg(cam_from_foot: np.ndarray, length_mm: float = 260.0) -> float:
+    """Angle (deg) between a foot's heel-to-toe axis and the line of sight to its middle, from its (4, 4) pose
+    (foot frame: heel at the origin, toes along +x): 0 end-on, 90 seen square to its length."""
+    axis = cam_from_foot[:3, 0]
+    middle = cam_from_foot[:3, :3] @ [length_mm / 2, 0.0, 0.0] + cam_from_foot[:3, 3]
+    cos = abs(float(axis @ middle)) / float(np.linalg.norm(middle))
+    return math.degrees(math.acos(min(cos, 1.0)))
+
+
 def evaluate_mode(
-    mode: str, n: int, size: int, views: str = "random", progress: bool = True, seed: int = EVAL_SEED
+    mode: str,
+    n: int,
+    size: int,
+    views: str = "random",
+    progress: bool = True,
+    seed: int = EVAL_SEED,
+    config: MeasureConfig | None = None,
 ) -> ModeResult:
-    """Measure ``n`` synthetic photos of ``mode`` with the full pipeline."""
+    """Measure ``n`` synthetic photos of ``mode`` with the full pipeline (``config``: its settings; default ones)."""
     from tqdm import tqdm
 
     from footmesh.pipeline import measure_photo
@@ -198,6 +217,7 @@ def evaluate_mode(
             else:
                 paths = _write_inputs(sample, Path(tmp) / f"{i}", with_depth=mode in ("rgbd", "depth"))
             truth = true_measurements(sample["shape"], side)
+            angle = view_angle_deg(np.asarray(sample["cam_from_foot"], dtype=np.float64), truth["stick_length"])
             t0 = time.perf_counter()
             try:
                 res = measure_photo(
@@ -206,9 +226,10 @@ def evaluate_mode(
                     depth=paths.get("depth"),
                     intrinsics=paths["intrinsics"],
                     input={"rgb_ref": "rgb", "rgb": "rgb", "rgbd_heic": "rgbd"}.get(mode, mode),
+                    config=config,
                 )
             except ValueError as exc:
-                result.records.append(Record(i, view, False, str(exc)))
+                result.records.append(Record(i, view, False, str(exc), view_angle_deg=angle))
                 continue
             rec = Record(
                 i,
@@ -219,6 +240,7 @@ def evaluate_mode(
                 stage_seconds=dict(res["timings_s"]),
                 fit_loss=float(res["fit"]["loss"]),
                 fit_quality=dict(res["fit"]["quality"]),
+                view_angle_deg=angle,
             )
             rec.side_ok = res["side"] == side
             m = res["measurements"]
