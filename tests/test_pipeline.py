@@ -428,3 +428,21 @@ def test_a_foot_lying_on_a_floor_seen_from_straight_above_cannot_be_end_on():
     tilted = np.eye(4)
     tilted[:3, 2] = [0.0, -math.sin(math.radians(30)), -math.cos(math.radians(30))]  # 30 deg from straight down
     assert floor_end_on_bound(mask, K, tilted) == pytest.approx(math.sin(math.radians(30)), abs=1e-6)
+
+
+def test_warm_up_loads_every_network_the_pipeline_uses_once():
+    """``warm_up`` (the web forkserver's preload, footmesh.web.warm) leaves the foot model and the shipped
+    networks loaded: asking for them afterwards loads nothing."""
+    from footmesh.cues import weights as cues_weights
+    from footmesh.pipeline import warm_up
+    from footmesh.recon import weights as recon_weights
+
+    warm_up()
+    cues_before = cues_weights._cached_network.cache_info()
+    recon_before = recon_weights._cached_network.cache_info()
+    for kind in ("rgb", "rgbd", "depth"):
+        cues_weights.network_for(kind)
+    for kind in ("rgbd", "depth"):
+        recon_weights.network_for(kind)
+    assert cues_weights._cached_network.cache_info().misses == cues_before.misses
+    assert recon_weights._cached_network.cache_info().misses == recon_before.misses

@@ -432,11 +432,12 @@ def _add_eval_commands(sub: argparse._SubParsersAction) -> None:
     meas.add_argument("--size", type=int, default=640, help="photo side, px (default 640)")
     meas.add_argument(
         "--views",
-        choices=("random", "thesis", "guided", "ood"),
+        choices=("random", "thesis", "guided", "ood", "sweep"),
         default="random",
         help="camera views: random (any side and height), thesis (its 22 viewpoints), guided (as the photo guide "
         "asks: from the side and above, foot flat on the floor), ood (unlike the training renders: other fields of "
-        "view and distances, lifted and posed feet, a leg stump, re-toned skin, heavier noise)",
+        "view and distances, lifted and posed feet, a leg stump, re-toned skin, heavier noise), sweep (flat feet "
+        "from every side and height, end-on included: benchmarks/bench_end_on.py)",
     )
     meas.add_argument("--seed", type=int, default=4242, help="seed of the test photos (default 4242; training: 1-3)")
     meas.add_argument("--json", help="also write per-photo records to this JSON file")

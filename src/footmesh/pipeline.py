@@ -243,6 +243,21 @@ def check_framing(located: Located, width: int, height: int, config: MeasureConf
         )
 
 
+def warm_up(config: MeasureConfig | None = None) -> None:
+    """Load the foot model and every shipped network the pipeline uses now, once per process (they are cached):
+    a server's forkserver calls it (``footmesh.web.warm``) so that each job forked from it starts with them in
+    memory instead of loading them."""
+    from footmesh.cues.weights import network_for as cues_network
+    from footmesh.recon.weights import network_for as decoder_network
+
+    config = config or MeasureConfig()
+    default_model()
+    for kind in ("rgb", "rgbd", "depth"):
+        cues_network(kind)
+    for kind in sorted(set(config.decoder_start_inputs) | set(config.decoder_side_inputs)):
+        decoder_network(kind)
+
+
 def working_photo(photo: Photo, max_side: int) -> tuple[np.ndarray, np.ndarray | None, np.ndarray, float]:
     """The photo, its depth and intrinsics at no more than ``max_side`` px (the pipeline's working resolution).
 

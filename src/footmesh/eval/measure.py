@@ -187,7 +187,13 @@ def evaluate_mode(
 
     from footmesh.pipeline import measure_photo
     from footmesh.synth.render import Renderer
-    from footmesh.synth.scene import SynthConfig, guided_view_config, ood_view_config, thesis_view
+    from footmesh.synth.scene import (
+        SynthConfig,
+        guided_view_config,
+        ood_view_config,
+        sweep_view_config,
+        thesis_view,
+    )
 
     renderers = {}
 
@@ -197,6 +203,8 @@ def evaluate_mode(
                 config = guided_view_config(size=size, reference=reference)
             elif views == "ood":
                 config = ood_view_config(size=size, reference=reference)
+            elif views == "sweep":
+                config = sweep_view_config(size=size, reference=reference)
             else:
                 config = SynthConfig(size=size, reference=reference, views=views, frame_reference=True)
             renderers[reference] = Renderer(config)

@@ -195,6 +195,19 @@ def guided_view_config(**fields) -> SynthConfig:
     return SynthConfig(**{**guided, **fields})
 
 
+def sweep_view_config(**fields) -> SynthConfig:
+    """Scenes for how the error grows as a foot is seen end-on (``benchmarks/bench_end_on.py``): any side of the
+    foot including straight behind the heel, from just above the floor to straight down, the foot flat on the
+    floor (a lifted foot's error is another matter), the reference object in view."""
+    sweep = dict(
+        max_azimuth_deg=180.0,
+        elevation_deg=(5.0, 89.0),
+        lifted_fraction=0.0,
+        frame_reference=True,
+    )
+    return SynthConfig(**{**sweep, **fields})
+
+
 def ood_view_config(**fields) -> SynthConfig:
     """Scenes deliberately unlike the training ones (issue 19's out-of-distribution eval): phones' tele and
     ultra-wide fields of view, nearer and farther cameras, any side and height up to straight down, more roll,

@@ -31,6 +31,8 @@ log = logging.getLogger(__name__)
 MeasureFn = Callable[..., dict]
 """``measure(image, out_dir, *, depth, depth_unit, intrinsics, side) -> result dict`` (footmesh.pipeline)."""
 PIPELINE_MODULE = "footmesh.pipeline"
+WARM_MODULE = "footmesh.web.warm"
+"""Imports the pipeline and loads its foot model and networks: the forkserver's preload for the real pipeline."""
 EXIT_WAIT_S = 5.0
 KILL_GRACE_S = 10.0
 CANCEL_POLL_S = 0.25
@@ -318,8 +320,9 @@ def _process_context(measure: MeasureFn, preload: tuple[str, ...]) -> multiproce
     if "forkserver" not in multiprocessing.get_all_start_methods():
         return multiprocessing.get_context("spawn")
     ctx = multiprocessing.get_context("forkserver")
-    # a function's module, or (for a callable object) its class's module
-    module = PIPELINE_MODULE if measure is default_measure else getattr(measure, "__module__", None)
+    # a function's module, or (for a callable object) its class's module; the real pipeline also with its networks
+    # loaded (footmesh.web.warm), so that no job loads them again
+    module = WARM_MODULE if measure is default_measure else getattr(measure, "__module__", None)
     # "__main__": each child would otherwise import the main script again itself. A module that cannot be imported
     # is skipped by the forkserver (Python 3.11's forkserver also ignores the server's sys.path: test modules
     # outside the package load in each job) and jobs then import it themselves.
