@@ -254,13 +254,18 @@ class MeasureConfig:
     edge_margin_px: float = 2.0
     max_rgb_end_on: float = 0.5
     """RGB photos (no depth) are refused when the fitted foot's long axis points within acos(this) = 60 deg of the
-    line of sight: its length is then foreshortened and poorly seen (random-view eval: length errors of 13-70 mm in
-    6 of 7 such photos, against 2-21 mm for side views)."""
+    line of sight: its length is then foreshortened and poorly seen. ``benchmarks/bench_end_on.py`` (90 flat feet
+    from every side, seed 4242, refusal off), length MAE by the true view angle: 0-30 deg 20.9 mm, 30-40 16.5,
+    40-50 12.3, 50-60 10.8, 60-90 6-16 (no band of plain photos is within half a size on these views, so the limit
+    sits where the error stops growing with the angle)."""
+    max_rgbd_end_on: float = 0.766
+    """RGB-D photos are refused within acos(this) = 40 deg: depth sees along the line of sight, and the same
+    benchmark gives 7.0 / 8.7 mm below 30 / 30-40 deg, 2.2 at 40-50 and 1.5-3.2 beyond (the limit was 50 deg, from
+    4 of 7 random views off by 11-28 mm)."""
     max_depth_end_on: float = 0.64
-    """Photos with depth are refused when the fitted long axis points within acos(this) = 50 deg of the line of
-    sight: depth sees along it, but the far end of the foot (the heel, when the toes face the camera) is hidden
-    behind the near one and the fit makes it up (random-view eval, seed 4242, RGB-D and depth: 4 of the 7 photos
-    within 50 deg off by 11-28 mm, 1 of the 32 others by more than 10 mm)."""
+    """Depth maps alone are refused within acos(this) = 50 deg: the far end of the foot hides behind the near one
+    and, without the photo's outline, the fit makes it up (the benchmark: 7.7 / 8.5 mm below 30 / 30-40 deg, 4.1
+    at 40-50, at the edge of half a size, 1.2-2.7 at 50-80)."""
     joint_sigma_224_px: float = 3.0
     """Expected error of a network's 2D joint, in pixels of its crop resized to 224 px (the networks' mean error
     there is 3-4 px); the fit's joint sigma is this times crop side / 224, in working pixels. Against a fixed 3

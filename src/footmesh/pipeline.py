@@ -571,7 +571,7 @@ def _measure_located(
             f"the foot is seen end-on (its length points {end_on_deg:.0f} deg from the line of sight), so its "
             "length cannot be measured from a plain photo; photograph it from the side and above"
         )
-    if kind != "rgb" and end_on > config.max_depth_end_on:
+    if kind != "rgb" and end_on > (config.max_rgbd_end_on if kind == "rgbd" else config.max_depth_end_on):
         raise PipelineError(
             f"the foot is seen end-on (its length points {end_on_deg:.0f} deg from the line of sight), so the far "
             "end of the foot is hidden behind the near one and its length cannot be measured; photograph it from "
