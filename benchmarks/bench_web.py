@@ -68,6 +68,25 @@ async def post_all(url: str, photo: bytes, n: int, concurrency: int, timeout_s: 
         return await asyncio.gather(*(one(i) for i in range(n)))
 
 
+def in_process_seconds(photo: bytes, runs: int = 5) -> float:
+    """Median seconds of ``measure_photo`` on ``photo`` in this process, after one warm-up run."""
+    import statistics
+    import tempfile
+
+    from footmesh.pipeline import measure_photo
+
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / "photo.jpg"
+        path.write_bytes(photo)
+        measure_photo(path, Path(tmp) / "warm")
+        times = []
+        for i in range(runs):
+            start = time.perf_counter()
+            measure_photo(path, Path(tmp) / f"out{i}")
+            times.append(time.perf_counter() - start)
+    return statistics.median(times)
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--n", type=int, default=16, help="uploads (default 16)")
@@ -138,6 +157,12 @@ def main(argv: list[str] | None = None) -> int:
     )
     for r in lost[:5]:
         print(f"  lost #{r['i']}: {r['error']}")
+    if args.pipeline == "real" and not args.url and ok:
+        warm_in_process = in_process_seconds(photo)
+        print(
+            f"  the same photo measured in this process, warm: median {warm_in_process:.2f} s; a web request "
+            f"costs {np.percentile(seconds, 50) / warm_in_process:.2f}x that (issue 21: <= 1.2x)"
+        )
     good = len(ok) + statuses.get(503, 0) == args.n and not lost and not mixed and distinct == len(ok)
     print("  all answered, none lost" if good else "  PROBLEM: some uploads were lost or mixed up")
     return 0 if good else 1

@@ -300,6 +300,10 @@ def test_process_isolation_measures_and_kills_at_the_time_limit(make_client, dem
     assert post_photo(client, demo_photo).status_code == 200
     refused = post_photo(client, blank_photo, name="x.png", content_type="image/png")
     assert refused.status_code == 422 and refused.json()["detail"].startswith("no foot")
+    # the same warm process answered both (a refusal does not cost it), and the server's shutdown stops it
+    assert len(multiprocessing.active_children()) == 1
+    client.__exit__(None, None, None)
+    assert multiprocessing.active_children() == []
 
     slow = make_client(StubMeasure(delay_s=60.0), isolation="process", time_limit_s=1.0, preload=())
     start = time.monotonic()
@@ -308,6 +312,21 @@ def test_process_isolation_measures_and_kills_at_the_time_limit(make_client, dem
     assert time.monotonic() - start < 8.0
     assert multiprocessing.active_children() == []  # the job was killed, not left running
     assert slow.get("/api/health").json()["running"] == 0
+    assert upload_dirs(tmp_path) == []
+
+
+def test_warm_processes_serve_job_after_job_and_a_crash_costs_only_its_own(make_client, demo_photo, tmp_path):
+    """Process isolation keeps its measurement processes (the networks stay loaded): two jobs, one process; a job
+    that kills its process gets 500 and the next job gets a fresh process."""
+    client = make_client(StubMeasure(), isolation="process", time_limit_s=60.0, preload=())
+    first, second = (post_photo(client, demo_photo).json()["pid"] for _ in range(2))
+    assert first == second
+    crashing = make_client(StubMeasure(crash=True), isolation="process", time_limit_s=60.0, preload=())
+    for _ in range(2):  # the dead process is replaced: the next job runs (and dies) in a fresh one
+        died = post_photo(crashing, demo_photo)
+        assert died.status_code == 500 and "process died" in died.json()["detail"]
+    assert crashing.get("/api/health").json()["running"] == 0
+    assert post_photo(client, demo_photo).json()["pid"] == first  # the other server's process is untouched
     assert upload_dirs(tmp_path) == []
 
 

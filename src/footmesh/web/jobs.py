@@ -1,8 +1,10 @@
 """Running measurements for the web app: a bounded queue, a fixed number of workers and a time limit.
 
 A request is admitted while fewer than ``workers + queue`` are in; it then waits (first come, first served) for
-one of ``workers`` slots. In "process" isolation each measurement runs in a process forked from a forkserver that
-has the pipeline's modules imported, and is killed at the time limit, so a stuck or crashing job never takes the
+one of ``workers`` slots. In "process" isolation each measurement runs in one of ``workers`` warm processes,
+forked from a forkserver that has the pipeline imported and its networks loaded, which take jobs one after another
+(the networks stay loaded, so a request costs what a warm measurement costs); a process whose job runs past the
+time limit, crashes, or whose client goes away is killed and replaced, so a stuck or crashing job never takes the
 server with it. The request's temporary folder is deleted when the job has really ended (killed or finished).
 """
 
@@ -35,6 +37,8 @@ WARM_MODULE = "footmesh.web.warm"
 """Imports the pipeline and loads its foot model and networks: the forkserver's preload for the real pipeline."""
 EXIT_WAIT_S = 5.0
 KILL_GRACE_S = 10.0
+JOBS_PER_WORKER = 100
+"""A warm measurement process is replaced after this many jobs (whatever a job leaves behind stays bounded)."""
 CANCEL_POLL_S = 0.25
 """How often a job in its own process looks whether its client has gone (s)."""
 """In process isolation the worker kills the job at the time limit; the request gives up this much later."""
@@ -126,17 +130,43 @@ def _classify(exc: BaseException) -> tuple[str, str]:
     return "crash", "".join(traceback.format_exception(exc))
 
 
-def _child_main(measure: MeasureFn, job: Job, conn: Connection) -> None:
-    """Entry point of a measurement process: run, then send ("ok", result) or (kind, message) back."""
-    try:
-        outcome: tuple[str, Any] = ("ok", _call(measure, job))
-    except BaseException as exc:  # everything goes back to the server as a message; the process then ends
-        outcome = _classify(exc)
-    try:
-        conn.send(outcome)
-    except Exception as exc:  # e.g. a result that cannot be pickled
-        conn.send(("crash", f"the result could not be sent back: {exc!r}"))
-    conn.close()
+def _worker_main(measure: MeasureFn, conn: Connection) -> None:
+    """Entry point of a warm measurement process: jobs one after another, each answered with ("ok", result) or
+    (kind, message), until the server sends None, closes the pipe, or kills the process (time limit, client gone)."""
+    while True:
+        try:
+            job = conn.recv()
+        except (EOFError, OSError):
+            return
+        if job is None:
+            return
+        try:
+            outcome: tuple[str, Any] = ("ok", _call(measure, job))
+        except BaseException as exc:  # everything goes back to the server as a message; the process goes on
+            outcome = _classify(exc)
+        try:
+            conn.send(outcome)
+        except Exception as exc:  # e.g. a result that cannot be pickled
+            conn.send(("crash", f"the result could not be sent back: {exc!r}"))
+
+
+class _Worker:
+    """A warm measurement process (``_worker_main``) and the server's end of its pipe."""
+
+    def __init__(self, ctx: multiprocessing.context.BaseContext, measure: MeasureFn) -> None:
+        self.conn, child = ctx.Pipe(duplex=True)
+        self.process = ctx.Process(target=_worker_main, args=(measure, child), name="footmesh-measure")
+        self.process.daemon = True
+        self.process.start()
+        child.close()  # only the worker writes to its end; EOF on ours then means the worker is gone
+        self.jobs = 0
+
+    def stop(self) -> None:
+        """Kill the process (a job past its limit, a client gone, a broken pipe) and wait for it."""
+        if self.process.is_alive():
+            self.process.kill()
+        self.process.join(EXIT_WAIT_S)
+        self.conn.close()
 
 
 class _Slots:
@@ -187,16 +217,27 @@ class JobRunner:
         self._running = 0
         self._pool = ThreadPoolExecutor(max_workers=settings.workers, thread_name_prefix="footmesh-job")
         self._ctx = _process_context(measure, settings.preload) if settings.isolation == "process" else None
+        self._idle: list[_Worker] = []  # warm measurement processes waiting for a job (process isolation)
+        self._idle_lock = threading.Lock()
 
     def start(self) -> None:
-        """Start the forkserver now (process isolation) so that the first request does not wait for it."""
-        if self._ctx is not None and self._ctx.get_start_method() == "forkserver":
+        """Start the forkserver and the warm measurement processes now (process isolation), so that the first
+        request waits for neither."""
+        if self._ctx is None:
+            return
+        if self._ctx.get_start_method() == "forkserver":
             from multiprocessing import forkserver
 
             forkserver.ensure_running()
+        with self._idle_lock:
+            self._idle.extend(_Worker(self._ctx, self.measure) for _ in range(self.settings.workers))
 
     def close(self) -> None:
         self._pool.shutdown(wait=False, cancel_futures=True)
+        with self._idle_lock:
+            idle, self._idle = self._idle, []
+        for worker in idle:
+            worker.stop()
 
     @property
     def running(self) -> int:
@@ -275,32 +316,37 @@ class JobRunner:
             _remove(job.work_dir)
 
     def _run_in_process(self, job: Job, cancelled: threading.Event | None = None) -> dict:
-        receiver, sender = self._ctx.Pipe(duplex=False)
-        proc = self._ctx.Process(target=_child_main, args=(self.measure, job, sender), name="footmesh-measure")
-        proc.daemon = True
-        proc.start()
-        sender.close()  # only the child writes; EOF on our end then means the child is gone
+        """``job`` in a warm measurement process (one waiting, else a new one); the process is killed when the job
+        runs past the time limit or its client goes away, and replaced at the next job; it serves at most
+        ``JOBS_PER_WORKER`` jobs."""
+        with self._idle_lock:
+            worker = self._idle.pop() if self._idle else None
+        if worker is None or not worker.process.is_alive():
+            if worker is not None:
+                worker.stop()
+            worker = _Worker(self._ctx, self.measure)
         answered = False
         try:
+            worker.conn.send(job)
             deadline = time.monotonic() + self.settings.time_limit_s
-            while not receiver.poll(min(CANCEL_POLL_S, max(deadline - time.monotonic(), 0.0))):
+            while not worker.conn.poll(min(CANCEL_POLL_S, max(deadline - time.monotonic(), 0.0))):
                 if cancelled is not None and cancelled.is_set():
-                    raise Cancelled("the client went away before the answer")  # the finally kills the child
+                    raise Cancelled("the client went away before the answer")  # the finally kills the worker
                 if time.monotonic() >= deadline:
                     raise TimedOut(f"the measurement took longer than the limit of {self.settings.time_limit_s:g} s")
             try:
-                kind, payload = receiver.recv()
+                kind, payload = worker.conn.recv()
             except EOFError:
-                proc.join(5.0)
-                raise Crashed(f"the measurement process died (exit code {proc.exitcode})") from None
+                worker.process.join(EXIT_WAIT_S)
+                raise Crashed(f"the measurement process died (exit code {worker.process.exitcode})") from None
             answered = True
         finally:
-            if answered:
-                proc.join(EXIT_WAIT_S)  # it has answered and is only exiting
-            if proc.is_alive():
-                proc.kill()
-                proc.join(EXIT_WAIT_S)
-            receiver.close()
+            worker.jobs += 1
+            if answered and worker.jobs < JOBS_PER_WORKER and worker.process.is_alive():
+                with self._idle_lock:
+                    self._idle.append(worker)
+            else:
+                worker.stop()
         if kind != "ok":
             _raise(kind, payload)
         return payload

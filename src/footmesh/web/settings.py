@@ -27,9 +27,10 @@ class WebSettings:
         queue_wait_s: longest a request waits in the queue before it gets 503.
         result_ttl_s: how long result files stay downloadable.
         max_results: results kept at most; the oldest go first.
-        isolation: "process" runs each measurement in a forked process that is killed at the time limit (the
-            server's default); "thread" runs it in a thread of the server (tests, trusted local use: a job past
-            the time limit gets 504 but keeps its worker until it ends).
+        isolation: "process" runs each measurement in one of ``workers`` warm processes (forked once, reused
+            job after job) that is killed and replaced at the time limit or on a crash (the server's default);
+            "thread" runs it in a thread of the server (tests, trusted local use: a job past the time limit gets
+            504 but keeps its worker until it ends).
         work_dir: parent of the server's temporary folders (uploads, results); None: the system's temp folder.
         preload: modules the forkserver imports once, besides the measure function's own, so that each job
             starts in milliseconds instead of importing torch (process isolation).
