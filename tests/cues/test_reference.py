@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from footmesh.cues import reference
-from footmesh.cues.reference import SIZES_MM, ReferenceObject, detect_reference
+from footmesh.cues.reference import SIZES_MM, ReferenceObject, detect_reference, search_reference
 from footmesh.synth import textures
 from footmesh.synth.render import Renderer
 from footmesh.synth.scene import REFERENCE_KINDS, SynthConfig, guided_view_config
@@ -172,6 +172,35 @@ def test_a_bright_blob_with_no_straight_sides_is_no_sheet():
     sample = Renderer(guided_view_config(size=640, reference="none")).render(4242 + MODES.index("rgb"), 4)
     foot = cv2.dilate((sample["labels"] == 1).astype(np.uint8), np.ones((15, 15), np.uint8)) > 0
     assert detect_reference(sample["rgb"], sample["K"], exclude_mask=foot) is None
+
+
+def test_the_foots_lit_skin_is_no_sheet_when_searched_again_without_the_mask():
+    """Nothing found with the foot's mask, the search runs again without it (real masks spread over the sheet); the
+    lit forefoot with the floor around its toes then once passed as an A4 sheet: what the mask leaves of a sheet
+    must be paper."""
+    from footmesh.eval.measure import MODES
+    from footmesh.synth.scene import guided_view_config
+
+    sample = Renderer(guided_view_config(size=640, reference="none")).render(4242 + MODES.index("rgb"), 17)
+    for mask in (_foot_and_leg(sample), cv2.dilate(_foot_and_leg(sample).astype(np.uint8), np.ones((15, 15))) > 0):
+        assert detect_reference(sample["rgb"], sample["K"], exclude_mask=mask) is None
+
+
+def test_a_sheet_under_a_mask_spread_over_it_is_found_and_a_missed_one_says_why():
+    """Where the silhouette network's mask spreads over half the sheet, hiding two of its sides, the sheet is still
+    found (searched again without the mask); a sheet cut by the photo's edge is refused with its reason."""
+    sample = _scenes("a4", 1)[0]
+    corners = sample["ref_corners2d"].astype(np.float64)
+    spread = _foot_and_leg(sample).copy()
+    left = int(np.median(corners[:, 0]))
+    spread[:, : left + 2] = True  # and everything left of the sheet's middle: two sides and two corners
+    _check_found(detect_reference(sample["rgb"], sample["K"], exclude_mask=spread), sample, "a4")
+
+    cut = sample["rgb"][:, : int(corners[:, 0].max()) - 20].copy()  # the sheet's right side beyond the border
+    searched = search_reference(cut, sample["K"])
+    assert searched.found is None or searched.found.kind != "a4"
+    if searched.found is None:
+        assert searched.rejected and 0.0 < searched.rejected_area < 1.0
 
 
 def test_only_the_kinds_asked_for():

@@ -88,6 +88,10 @@ MAX_ANGLE_TOLERANCE_DEG = 6.0
 so far that a sheet could pass for a card)."""
 LOOSE_FACTOR = 3.0
 """Candidates are refined when they pass the metric test with tolerances this many times wider."""
+MIN_PAPER_SHOWN = 0.1
+"""Searched again without the caller's mask, a sheet must show paper over at least this fraction of its area
+outside the mask: the foot's lit skin (with the floor around the toes) passed as a white sheet once, while the
+real sheets' masks, however spread, left 29-72 % of them in view."""
 SHAPE_WEIGHT = 0.25
 """Of the candidates for one object, the score loses this much per tolerance that its shape departs from the
 object's (side ratio and right angle): quads of one sheet that differ by a side caught on the leg's outline
@@ -318,7 +322,10 @@ def search_reference(
     if valid is not None:
         # the mask is the silhouette network's, and on real photos it sometimes spreads over the floor and hides
         # the sheet's sides; the sides' own tests (straight, supported, not running on) still hold without it
-        again = _try_groups(sheet_groups, card_groups, sheets, wanted, blurred, K, None)
+        # the sides' own tests (straight, supported, not running on) still hold without it; but the foot's own
+        # lit skin is no sheet: what the mask leaves of a sheet must be paper
+        masked = exclude_mask.astype(bool)
+        again = _try_groups(sheet_groups, card_groups, sheets, wanted, blurred, K, None, masked)
         if again.found is not None:
             return again
     return ReferenceSearch(None, searched.rejected, searched.rejected_area / (h * w))
@@ -332,10 +339,11 @@ def _try_groups(
     blurred: np.ndarray,
     K: np.ndarray,
     valid: np.ndarray | None,
+    masked: np.ndarray | None = None,
 ) -> ReferenceSearch:
     """Refine and test the rough quads of ``_candidate_groups`` in turn: the A4 sheet found, else the card, else
     (``rejected_area`` in px here) why the largest rough quad was rejected. Quads over a marker's printed sheet
-    (``sheets``) are skipped."""
+    (``sheets``) are skipped, and objects found more than ``MAX_MASKED_SHARE`` inside ``masked`` (H, W) bool."""
     best: dict[str, tuple[float, ReferenceObject]] = {}
     accepted: list[np.ndarray] = []  # corners already found, in canonical order
     largest_rejected: list[tuple[float, str]] = []  # (area px, why) of the largest rough quad rejected
@@ -354,6 +362,8 @@ def _try_groups(
                 area = abs(_signed_area(quad))
                 if why and (not largest_rejected or area > largest_rejected[0][0]):
                     largest_rejected[:] = [(area, why[0])]
+                continue
+            if masked is not None and not _paper_beside(result[1].corners_px, masked, blurred):
                 continue
             accepted.append(_canonical(result[1].corners_px))
             score, obj = result
@@ -376,6 +386,20 @@ def _try_groups(
         return ReferenceSearch(None)
     area, why = largest_rejected[0]
     return ReferenceSearch(None, why, area)
+
+
+def _paper_beside(quad: np.ndarray, masked: np.ndarray, blurred: np.ndarray) -> bool:
+    """Whether the part of a sheet's (4, 2) px quad outside ``masked`` (H, W) bool is paper: at least
+    ``MIN_PAPER_SHOWN`` of its area, of a colour with little saturation (``PAPER_MAX_SATURATION``)."""
+    inside = np.zeros(masked.shape, np.uint8)
+    cv2.fillPoly(inside, [np.round(quad).astype(np.int32)], 1)
+    inside = cv2.erode(inside, _KERNEL5)  # not the sides' own blur
+    area = int(inside.sum())
+    shown = (inside > 0) & ~masked
+    if area == 0 or shown.sum() < MIN_PAPER_SHOWN * area:
+        return False
+    colour = np.median(blurred[shown], axis=0)
+    return float((colour.max() - colour.min()) / max(float(colour.max()), 1e-6)) <= PAPER_MAX_SATURATION
 
 
 # --- input checks -------------------------------------------------------------------------------------------
