@@ -119,10 +119,14 @@ def _post_and_leave(url: str, photo: bytes) -> None:
 
 @pytest.mark.parametrize("isolation", ["thread", "process"])
 def test_a_client_that_goes_away_frees_its_job_and_leaves_no_result(tmp_path, isolation):
-    import numpy as np
-    from conftest import png_bytes
+    import io
 
-    photo = png_bytes(np.random.default_rng(0).integers(0, 255, (64, 64, 3), dtype=np.uint8))
+    import numpy as np
+    from PIL import Image
+
+    buffer = io.BytesIO()
+    Image.fromarray(np.random.default_rng(0).integers(0, 255, (64, 64, 3), dtype=np.uint8)).save(buffer, "PNG")
+    photo = buffer.getvalue()
     settings = WebSettings(isolation=isolation, work_dir=tmp_path)
     delay = 4.0
     with running_server(FakeMeasure(delay_s=delay), settings) as url:
