@@ -3,6 +3,7 @@ a prompt client nor stay open past the header time-out."""
 
 from __future__ import annotations
 
+import io
 import socket
 import time
 import urllib.request
@@ -96,8 +97,8 @@ def _health(url: str) -> dict:
         return json.loads(response.read())
 
 
-def _post_and_leave(url: str, photo: bytes) -> None:
-    """Send a whole measurement request, then close the connection without reading the answer."""
+def _measure_request(url: str, photo: bytes) -> bytes:
+    """The bytes of a measurement request for ``photo`` (multipart form, the photo field only)."""
     boundary = "footmeshboundary"
     body = (
         (
@@ -108,13 +109,28 @@ def _post_and_leave(url: str, photo: bytes) -> None:
         + f"\r\n--{boundary}--\r\n".encode()
     )
     head = (
-        f"POST /api/measure HTTP/1.1\r\nHost: 127.0.0.1\r\nContent-Type: multipart/form-data; boundary={boundary}\r\n"
+        f"POST /api/measure HTTP/1.1\r\nHost: 127.0.0.1\r\nConnection: close\r\n"
+        f"Content-Type: multipart/form-data; boundary={boundary}\r\n"
         f"Content-Length: {len(body)}\r\n\r\n"
     ).encode()
+    return head + body
+
+
+def _post_and_leave(url: str, photo: bytes) -> None:
+    """Send a whole measurement request, then close the connection without reading the answer."""
     parts = urlsplit(url)
     with socket.create_connection((parts.hostname, parts.port), timeout=5.0) as sock:
-        sock.sendall(head + body)
-        time.sleep(0.8)  # the job has started
+        sock.sendall(_measure_request(url, photo))
+        time.sleep(0.8)  # the job has started (or waits for a worker)
+
+
+def _post_and_wait(url: str, photo: bytes) -> None:
+    """Send a whole measurement request and read its answer to the end."""
+    parts = urlsplit(url)
+    with socket.create_connection((parts.hostname, parts.port), timeout=30.0) as sock:
+        sock.sendall(_measure_request(url, photo))
+        while sock.recv(65536):
+            pass
 
 
 @pytest.mark.parametrize("isolation", ["thread", "process"])
@@ -159,3 +175,26 @@ def test_an_upload_that_stalls_gets_408(tmp_path):
         assert _health_seconds(url) < 2.0
     with pytest.raises(ValueError, match="upload_idle_timeout_s"):
         WebSettings(upload_idle_timeout_s=0)
+
+
+def test_a_job_whose_client_left_while_it_queued_never_runs(tmp_path):
+    import threading
+
+    import numpy as np
+    from PIL import Image
+
+    buffer = io.BytesIO()
+    Image.fromarray(np.random.default_rng(1).integers(0, 255, (64, 64, 3), dtype=np.uint8)).save(buffer, "PNG")
+    photo = buffer.getvalue()
+    delay = 2.0
+    settings = WebSettings(isolation="thread", work_dir=tmp_path, workers=1)
+    with running_server(FakeMeasure(delay_s=delay), settings) as url:
+        first = threading.Thread(target=_post_and_wait, args=(url, photo))
+        first.start()
+        time.sleep(0.3)  # the first job holds the only worker
+        _post_and_leave(url, photo)  # the second waits in the queue, and its client leaves
+        first.join(30.0)
+        time.sleep(0.3)
+        health = _health(url)
+        assert health["running"] == 0 and health["queued"] == 0  # the second did not start its 2 s job
+        assert health["stored_results"] == 1

@@ -278,6 +278,11 @@ class JobRunner:
             self._admitted -= 1
             _remove(job.work_dir)
             raise Busy(f"no worker came free within {s.queue_wait_s:.0f} s; try again later")
+        if cancelled is not None and cancelled.is_set():  # its client left while it waited: not run at all
+            self._admitted -= 1
+            self._slots.release()
+            _remove(job.work_dir)
+            raise Cancelled("the client went away before the answer")
         self._running += 1
         future = asyncio.get_running_loop().run_in_executor(self._pool, self._execute, job, cancelled)
         future.add_done_callback(self._finished)
