@@ -3,34 +3,12 @@ clients of an app that measures with the fake pipeline (``_fake_pipeline.py``)."
 
 from __future__ import annotations
 
-import io
 import warnings
 from collections.abc import Callable, Iterator
 
 import numpy as np
 import pytest
-from PIL import Image
-
-DEMO_SEED, DEMO_INDEX = 1, 6
-"""A synthetic scene of a foot standing on an A4 sheet, seen from above (the page's demo photo)."""
-
-
-def render_demo_photo(size: int = 320, quality: int = 90) -> bytes:
-    """The demo photo as JPEG bytes: a synthetic foot on an A4 sheet (``footmesh.synth``), ``size`` px square."""
-    from footmesh.synth.render import Renderer
-    from footmesh.synth.scene import SynthConfig
-
-    config = SynthConfig(size=size, reference="a4", lifted_fraction=0.0, elevation_deg=(55.0, 80.0))
-    rgb = Renderer(config).render(DEMO_SEED, DEMO_INDEX)["rgb"]
-    buffer = io.BytesIO()
-    Image.fromarray(rgb).save(buffer, format="JPEG", quality=quality)
-    return buffer.getvalue()
-
-
-def png_bytes(array: np.ndarray) -> bytes:
-    buffer = io.BytesIO()
-    Image.fromarray(array).save(buffer, format="PNG")
-    return buffer.getvalue()
+from _photos import png_bytes, render_demo_photo
 
 
 @pytest.fixture(scope="session")

@@ -18,8 +18,8 @@ from PIL import Image
 pytest.importorskip("fastapi", reason="the web extra (fastapi, python-multipart, httpx) is not installed")
 
 from _fake_pipeline import FakeMeasure, fake_measure  # noqa: E402
+from _photos import png_bytes  # noqa: E402
 from _stub_pipeline import StubMeasure  # noqa: E402
-from conftest import png_bytes  # noqa: E402
 
 MEASURE = "/api/measure"
 

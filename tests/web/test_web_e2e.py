@@ -23,7 +23,7 @@ pytest.importorskip("uvicorn", reason="the web extra (fastapi, uvicorn, python-m
 sync_api = pytest.importorskip("playwright.sync_api", reason="the playwright Python package is not installed")
 
 from _fake_pipeline import FakeMeasure  # noqa: E402
-from conftest import render_demo_photo  # noqa: E402
+from _photos import render_demo_photo  # noqa: E402
 
 
 def find_chromium() -> str | None:
