@@ -1,6 +1,6 @@
 """The web app with its default measure function, the real pipeline (``footmesh.pipeline.measure_photo``).
 
-Skipped until ``footmesh.pipeline`` exists; the other web tests use the fake pipeline.
+The other web tests use the fake pipeline.
 """
 
 from __future__ import annotations
@@ -12,7 +12,6 @@ import pytest
 import trimesh
 
 pytest.importorskip("fastapi", reason="the web extra (fastapi, python-multipart, httpx) is not installed")
-pytest.importorskip("footmesh.pipeline", reason="footmesh.pipeline (the measuring pipeline) does not exist yet")
 
 CONTRACT_KEYS = {"version", "input_sha256", "side", "scale_source", "measurements", "ratios", "sizes"}
 CONTRACT_KEYS |= {"joints2d_px", "joints3d_mm", "angles", "files", "messages"}
