@@ -294,8 +294,6 @@ def measure_photo(
     ``rgbd``, ``depth`` (the depth map alone; the photo only serves for the overlay). ``embedded_depth``: use a
     metric depth map stored inside the photo (iPhone HEIC, Android depth JPEG) when no ``depth`` is given.
     """
-    if side not in ("left", "right", "auto"):
-        raise PipelineError(f"side must be left, right or auto, got {side!r}")
     start = time.perf_counter()
     photo = load_photo(image, depth=depth, depth_unit=depth_unit, intrinsics=intrinsics, embedded_depth=embedded_depth)
     request = request_options(side, depth_unit, input, embedded_depth)

@@ -140,12 +140,12 @@ def test_guided_views_see_the_foot_from_the_side_and_flat_on_the_floor():
 
 
 def test_ood_views_are_unlike_the_training_ones():
-    """The out-of-distribution eval's scenes (``ood_view_config``): lifted feet, short leg stumps, every skin
+    """The out-of-distribution eval's scenes (``view_config("ood")``): lifted feet, short leg stumps, every skin
     re-toned, and four times the sensor noise on a flat floor patch."""
     from footmesh.synth.render import Renderer
-    from footmesh.synth.scene import SynthConfig, ood_view_config
+    from footmesh.synth.scene import SynthConfig, view_config
 
-    config = ood_view_config(size=48, reference="none")
+    config = view_config("ood", size=48, reference="none")
     scenes = [Renderer(config).scene(7, i) for i in range(40)]
     assert 0.2 < np.mean([s.lifted for s in scenes]) < 0.8
     assert all(s.skin_tone is not None for s in scenes)

@@ -3,7 +3,6 @@ a prompt client nor stay open past the header time-out."""
 
 from __future__ import annotations
 
-import io
 import socket
 import time
 import urllib.request
@@ -15,6 +14,7 @@ pytest.importorskip("fastapi", reason="the web extra (fastapi, uvicorn, python-m
 pytest.importorskip("uvicorn", reason="the web extra (fastapi, uvicorn, python-multipart) is not installed")
 
 from _fake_pipeline import FakeMeasure  # noqa: E402
+from _photos import png_bytes  # noqa: E402
 
 from footmesh.web.server import PER_CLIENT_WAITING, running_server  # noqa: E402
 from footmesh.web.settings import WebSettings  # noqa: E402
@@ -135,14 +135,9 @@ def _post_and_wait(url: str, photo: bytes) -> None:
 
 @pytest.mark.parametrize("isolation", ["thread", "process"])
 def test_a_client_that_goes_away_frees_its_job_and_leaves_no_result(tmp_path, isolation):
-    import io
-
     import numpy as np
-    from PIL import Image
 
-    buffer = io.BytesIO()
-    Image.fromarray(np.random.default_rng(0).integers(0, 255, (64, 64, 3), dtype=np.uint8)).save(buffer, "PNG")
-    photo = buffer.getvalue()
+    photo = png_bytes(np.random.default_rng(0).integers(0, 255, (64, 64, 3), dtype=np.uint8))
     settings = WebSettings(isolation=isolation, work_dir=tmp_path)
     delay = 4.0
     with running_server(FakeMeasure(delay_s=delay), settings) as url:
@@ -181,11 +176,8 @@ def test_a_job_whose_client_left_while_it_queued_never_runs(tmp_path):
     import threading
 
     import numpy as np
-    from PIL import Image
 
-    buffer = io.BytesIO()
-    Image.fromarray(np.random.default_rng(1).integers(0, 255, (64, 64, 3), dtype=np.uint8)).save(buffer, "PNG")
-    photo = buffer.getvalue()
+    photo = png_bytes(np.random.default_rng(1).integers(0, 255, (64, 64, 3), dtype=np.uint8))
     delay = 2.0
     settings = WebSettings(isolation="thread", work_dir=tmp_path, workers=1)
     with running_server(FakeMeasure(delay_s=delay), settings) as url:

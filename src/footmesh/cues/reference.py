@@ -1380,8 +1380,9 @@ def _object_points(kind: str) -> np.ndarray:
     return np.array([[0, 0, 0], [length, 0, 0], [length, width, 0], [0, width, 0]], dtype=np.float64)
 
 
-def _pose(corners: np.ndarray, kind: str, K: np.ndarray) -> tuple[np.ndarray, float] | None:
-    """``cam_from_floor`` (4, 4) mm and RMS reprojection (px) of the rectangle from its corners (IPPE)."""
+def rectangle_pose(corners: np.ndarray, kind: str, K: np.ndarray) -> tuple[np.ndarray, float] | None:
+    """``cam_from_floor`` (4, 4) mm and RMS reprojection (px) of the ``kind`` object's rectangle from its (4, 2) px
+    corners in local order (IPPE, K (3, 3)); None when no pose puts it in front of the camera, facing it."""
     obj = _object_points(kind)
     ok, rvec, tvec = cv2.solvePnP(obj, corners.reshape(4, 1, 2), K, None, flags=cv2.SOLVEPNP_IPPE)
     if not ok:
@@ -1399,7 +1400,7 @@ def _pose(corners: np.ndarray, kind: str, K: np.ndarray) -> tuple[np.ndarray, fl
 
 def _distance(corners: np.ndarray, kind: str, K: np.ndarray) -> float:
     """Camera-to-object-centre distance (mm) implied by the corners (NaN when there is no pose)."""
-    found = _pose(corners, kind, K)
+    found = rectangle_pose(corners, kind, K)
     if found is None:
         return float("nan")
     pose = found[0]
@@ -1570,7 +1571,7 @@ def _finish_quad(
         if _classify(local, K, ["a4", "card"], tol_ratio=tol_ratio, tol_angle=tol_angle) == ("a4", 0):
             corners, perturbed = local, local_perturbed
             at_corner = [(j, ln) for j, pair in enumerate(bowed) for ln in pair]
-    solved = _pose(corners, kind, K)
+    solved = rectangle_pose(corners, kind, K)
     if solved is None:
         return reject("no pose of the object fits its corners")
     pose, reproj = solved

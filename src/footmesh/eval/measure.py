@@ -187,24 +187,14 @@ def evaluate_mode(
 
     from footmesh.pipeline import measure_photo
     from footmesh.synth.render import Renderer
-    from footmesh.synth.scene import (
-        SynthConfig,
-        guided_view_config,
-        ood_view_config,
-        sweep_view_config,
-        thesis_view,
-    )
+    from footmesh.synth.scene import VIEW_PRESETS, SynthConfig, thesis_view, view_config
 
     renderers = {}
 
     def renderer(reference: str) -> Renderer:
         if reference not in renderers:
-            if views == "guided":
-                config = guided_view_config(size=size, reference=reference)
-            elif views == "ood":
-                config = ood_view_config(size=size, reference=reference)
-            elif views == "sweep":
-                config = sweep_view_config(size=size, reference=reference)
+            if views in VIEW_PRESETS:
+                config = view_config(views, size=size, reference=reference)
             else:
                 config = SynthConfig(size=size, reference=reference, views=views, frame_reference=True)
             renderers[reference] = Renderer(config)

@@ -61,22 +61,18 @@ def matched_corner_errors(found_px: np.ndarray, marked_px: np.ndarray) -> np.nda
 
 def sheet_centre_distance_mm(corners_px: np.ndarray, K: np.ndarray) -> float:
     """Camera-to-centre distance (mm) of an A4 sheet with these image corners (4, 2) in order round it, either
-    side first: the pose (IPPE) that reprojects them best."""
-    from footmesh.cues.reference import SIZES_MM
+    side first and either way round: the pose (``rectangle_pose``) that reprojects them best."""
+    from footmesh.cues.reference import SIZES_MM, rectangle_pose
 
     length, width = SIZES_MM["a4"]
-    rectangle = np.array([[0, 0, 0], [length, 0, 0], [length, width, 0], [0, width, 0]], dtype=np.float64)
     best = (float("inf"), float("nan"))
-    for start in range(4):
-        image = np.roll(corners_px, -start, axis=0).reshape(4, 1, 2)
-        ok, rvec, tvec = cv2.solvePnP(rectangle, image, K, None, flags=cv2.SOLVEPNP_IPPE)
-        if not ok:
-            continue
-        projected, _ = cv2.projectPoints(rectangle, rvec, tvec, K, None)
-        reprojection = float(np.sqrt(np.mean(np.sum((projected - image) ** 2, axis=2))))
-        rotation, _ = cv2.Rodrigues(rvec)
-        centre = rotation @ [length / 2, width / 2, 0.0] + tvec.ravel()
-        best = min(best, (reprojection, float(np.linalg.norm(centre))))
+    for order in (corners_px, corners_px[::-1]):
+        for start in range(4):
+            solved = rectangle_pose(np.roll(order, -start, axis=0), "a4", K)
+            if solved is not None:
+                pose, reprojection = solved
+                centre = pose[:3, :3] @ [length / 2, width / 2, 0.0] + pose[:3, 3]
+                best = min(best, (reprojection, float(np.linalg.norm(centre))))
     return best[1]
 
 

@@ -182,38 +182,17 @@ class Scene:
     first_person: bool = False
 
 
-def guided_view_config(**fields) -> SynthConfig:
-    """Scenes of photos taken as the photo guide asks (docs/measure.md): from the side (60-120 deg off the toes'
-    direction) and above (35-75 deg), the whole foot flat on the floor, the reference object in view."""
-    guided = dict(
-        min_azimuth_deg=60.0,
-        max_azimuth_deg=120.0,
-        elevation_deg=(35.0, 75.0),
-        lifted_fraction=0.0,
-        frame_reference=True,
-    )
-    return SynthConfig(**{**guided, **fields})
-
-
-def sweep_view_config(**fields) -> SynthConfig:
-    """Scenes for how the error grows as a foot is seen end-on (``benchmarks/bench_end_on.py``): any side of the
-    foot including straight behind the heel, from just above the floor to straight down, the foot flat on the
-    floor (a lifted foot's error is another matter), the reference object in view."""
-    sweep = dict(
-        max_azimuth_deg=180.0,
-        elevation_deg=(5.0, 89.0),
-        lifted_fraction=0.0,
-        frame_reference=True,
-    )
-    return SynthConfig(**{**sweep, **fields})
-
-
-def ood_view_config(**fields) -> SynthConfig:
-    """Scenes deliberately unlike the training ones (issue 19's out-of-distribution eval): phones' tele and
-    ultra-wide fields of view, nearer and farther cameras, any side and height up to straight down, more roll,
-    feet lifted and posed by IK half of the time, a short leg stump (150 mm above the ankle), every skin re-toned
-    (light to dark), the other foot in view, and four times the sensor noise; the reference object in view."""
-    ood = dict(
+VIEW_PRESETS: dict[str, dict] = {
+    # photos taken as the photo guide asks (docs/measure.md): from the side (60-120 deg off the toes' direction) and
+    # above (35-75 deg), the whole foot flat on the floor
+    "guided": dict(min_azimuth_deg=60.0, max_azimuth_deg=120.0, elevation_deg=(35.0, 75.0), lifted_fraction=0.0),
+    # how the error grows as a foot is seen end-on (benchmarks/bench_end_on.py): any side including straight behind
+    # the heel, from just above the floor to straight down, the foot flat on the floor
+    "sweep": dict(max_azimuth_deg=180.0, elevation_deg=(5.0, 89.0), lifted_fraction=0.0),
+    # deliberately unlike the training scenes (issue 19's out-of-distribution eval): tele and ultra-wide lenses,
+    # nearer and farther cameras, any side and height, more roll, half the feet lifted and posed by IK, a short
+    # leg stump (150 mm above the ankle), every skin re-toned, the other foot in view, four times the sensor noise
+    "ood": dict(
         fov_deg=(35.0, 100.0),
         distance_mm=(200.0, 1100.0),
         max_azimuth_deg=180.0,
@@ -225,9 +204,22 @@ def ood_view_config(**fields) -> SynthConfig:
         leg_top_mm=(150.0, 260.0),
         other_foot_fraction=0.3,
         rgb_noise_sd=6.0 / 255,
-        frame_reference=True,
-    )
-    return SynthConfig(**{**ood, **fields})
+    ),
+}
+"""Named sets of random views (``footmesh eval measure --views NAME``), each framing the reference object too."""
+
+
+def view_config(name: str, **fields) -> SynthConfig:
+    """``SynthConfig`` of the view set ``name`` (a key of ``VIEW_PRESETS``) with the reference object framed;
+    ``fields`` override any of it."""
+    if name not in VIEW_PRESETS:
+        raise ValueError(f"view set must be one of {tuple(VIEW_PRESETS)}, got {name!r}")
+    return SynthConfig(**{**VIEW_PRESETS[name], "frame_reference": True, **fields})
+
+
+def guided_view_config(**fields) -> SynthConfig:
+    """``view_config("guided", **fields)``: photos taken as the photo guide asks."""
+    return view_config("guided", **fields)
 
 
 def sample_scene(seed: int, index: int, config: SynthConfig, num_components: int) -> Scene:

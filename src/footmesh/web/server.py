@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import asyncio
 import contextlib
 import logging
 import threading
@@ -33,6 +34,7 @@ def guarded_protocol(header_timeout_s: float = HEADER_TIMEOUT_S, per_client: int
 
     class GuardedH11Protocol(H11Protocol):
         waiting: dict[str, dict[GuardedH11Protocol, None]] = {}  # client host -> its waiting ones, oldest first
+        _header_timer: asyncio.TimerHandle | None = None
 
         def connection_made(self, transport) -> None:  # type: ignore[no-untyped-def]
             super().connection_made(transport)
@@ -48,9 +50,8 @@ def guarded_protocol(header_timeout_s: float = HEADER_TIMEOUT_S, per_client: int
                 next(iter(queue))._drop()
 
         def _headers_done(self) -> None:
-            timer = getattr(self, "_header_timer", None)
-            if timer is not None:
-                timer.cancel()
+            if self._header_timer is not None:
+                self._header_timer.cancel()
                 self._header_timer = None
             host = self.client[0] if self.client else ""
             queue = GuardedH11Protocol.waiting.get(host)
