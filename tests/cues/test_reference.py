@@ -203,6 +203,28 @@ def test_a_sheet_under_a_mask_spread_over_it_is_found_and_a_missed_one_says_why(
         assert searched.rejected and 0.0 < searched.rejected_area < 1.0
 
 
+def test_a_square_of_a_tiled_pattern_is_not_blank_inside():
+    """A tiled floor's pattern makes light squares whose straight sides pass every test of a sheet's sides; what
+    tells them from a sheet is the inside: blank paper, or a pattern (``_blank_inside``, 12 -> 8 false sheets on
+    the 80 real photos of patterned floors in ../shared/real/rafiansyah)."""
+    from footmesh.cues.reference import _blank_inside, _fit_sides
+
+    image = np.full((200, 260, 3), 0.4, np.float32)
+    quad = np.array([[40.0, 40.0], [40.0, 160.0], [220.0, 160.0], [220.0, 40.0]])  # canonical order
+    cv2.fillPoly(image, [quad.astype(np.int32)], (0.9, 0.9, 0.9))
+    valid = np.ones(image.shape[:2], bool)
+    blurred = cv2.GaussianBlur(image, (0, 0), 0.75)
+    lines = _fit_sides(quad, blurred, valid, 3.0)
+    assert _blank_inside(quad, lines, valid, blurred)
+    patterned = image.copy()
+    for x in range(45, 215, 24):  # dark tiles over most of the light square
+        cv2.rectangle(patterned, (x, 60), (x + 22, 140), (0.25, 0.25, 0.25), -1)
+    assert not _blank_inside(quad, lines, valid, cv2.GaussianBlur(patterned, (0, 0), 0.75))
+    valid[:, :150] = False  # the foot's mask over the patterned half: the rest decides
+    patterned[:, 150:] = image[:, 150:]
+    assert _blank_inside(quad, lines, valid, cv2.GaussianBlur(patterned, (0, 0), 0.75))
+
+
 def test_only_the_kinds_asked_for():
     """A card is never reported as a sheet (nor a sheet as a card); asking for it alone still finds it."""
     card = _scenes("card", 1)[0]

@@ -88,6 +88,9 @@ MAX_ANGLE_TOLERANCE_DEG = 6.0
 so far that a sheet could pass for a card)."""
 LOOSE_FACTOR = 3.0
 """Candidates are refined when they pass the metric test with tolerances this many times wider."""
+MIN_BLANK_SHARE = 0.5
+"""Of a sheet's inside that the foot's mask leaves, at least this share must be of the paper's colour (a shadow
+over part of the sheet is allowed for)."""
 MIN_PAPER_SHOWN = 0.1
 """Searched again without the caller's mask, a sheet must show paper over at least this fraction of its area
 outside the mask: the foot's lit skin (with the floor around the toes) passed as a white sheet once, while the
@@ -365,6 +368,11 @@ def _try_groups(
                 continue
             if masked is not None and not _paper_beside(result[1].corners_px, masked, blurred):
                 continue
+            if masked is not None and result[1].kind == "a4":
+                lines = _fit_sides(result[1].corners_px, blurred, None, 1.5)
+                if lines is not None and all(ln is not None for ln in lines):
+                    if not _blank_inside(result[1].corners_px, lines, ~masked, blurred):
+                        continue
             accepted.append(_canonical(result[1].corners_px))
             score, obj = result
             if obj.kind not in best or score > best[obj.kind][0]:
@@ -400,6 +408,22 @@ def _paper_beside(quad: np.ndarray, masked: np.ndarray, blurred: np.ndarray) -> 
         return False
     colour = np.median(blurred[shown], axis=0)
     return float((colour.max() - colour.min()) / max(float(colour.max()), 1e-6)) <= PAPER_MAX_SATURATION
+
+
+def _blank_inside(quad: np.ndarray, lines: list[_Line], valid: np.ndarray, blurred: np.ndarray) -> bool:
+    """Whether a sheet's inside, where the caller's mask leaves it (``valid`` (H, W) bool), is blank paper: at least
+    ``MIN_BLANK_SHARE`` of those pixels within half the sides' typical change of the paper's colour. A square of a
+    tiled floor's pattern passes every test of its sides, but has the pattern inside."""
+    inside = np.zeros(valid.shape, np.uint8)
+    cv2.fillPoly(inside, [np.round(quad).astype(np.int32)], 1)
+    shown = (cv2.erode(inside, _KERNEL5) > 0) & valid
+    if not shown.any():
+        return True  # all of it under the foot: nothing to tell
+    inner, outer = _inner_outer(quad, lines)
+    paper = np.median(inner, axis=0)
+    change = float(np.median(np.linalg.norm(inner - outer, axis=1)))
+    near = np.linalg.norm(blurred[shown] - paper, axis=1) < 0.5 * change
+    return float(near.mean()) >= MIN_BLANK_SHARE
 
 
 # --- input checks -------------------------------------------------------------------------------------------
@@ -1551,6 +1575,8 @@ def _finish_quad(
         perturbed = [np.roll(c, -start, axis=0) for c in perturbed]
     if kind == "a4" and not _is_paper(corners, lines):
         return reject("it is not white paper brighter than the floor")
+    if kind == "a4" and valid is not None and not _blank_inside(corners, lines, valid, blurred):
+        return reject("it is not blank inside (a pattern or an object on it: tiles, not a sheet)")
     if kind == "a4":
         strange, outside = _strange_borders(corners, lines)
         # a completed sheet's fourth side runs where the foot hides it (its colours are the foot's), not beside it
