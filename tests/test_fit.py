@@ -110,7 +110,7 @@ def test_depth_recovers_length_width_and_the_mesh(depth_fits):
     assert np.median(vertex_error) < 2.5, vertex_error
     for _, fit in depth_fits:
         assert fit.scaled and fit.scale_source == "depth"
-        assert fit.quality["contour_within_2px"] > 0.9
+        assert fit.quality.contour_within_2px > 0.9
 
 
 def test_floor_plane_gives_scale_to_a_plain_photo(floor_fits):

@@ -1,4 +1,5 @@
-"""The measure pipeline: cropping, framing checks, the batch command, and whole photos with known truth."""
+"""The measure pipeline: cropping, the batch command, and whole photos with known truth (the refusals on their
+own: test_refusals.py)."""
 
 from __future__ import annotations
 
@@ -16,8 +17,9 @@ from footmesh.batch import check_output, output_folders, summary_table
 from footmesh.cli import main
 from footmesh.config import MeasureConfig
 from footmesh.cues import Cues
+from footmesh.errors import Refusal
 from footmesh.examples import examples
-from footmesh.pipeline import CropBox, Located, PipelineError, _cues_in_photo, check_framing, measure_photo
+from footmesh.pipeline import CropBox, _cues_in_photo, measure_photo
 
 CONTRACT_KEYS = {
     "version",
@@ -62,45 +64,6 @@ def test_cues_of_a_crop_land_in_photo_pixels():
     assert photo.silhouette.sum() == sil.sum()
     assert photo.silhouette[5 + 2, -2 + 3] == 1
     assert np.allclose(photo.joints2d_px[0], [-1.0, 7.0])
-
-
-def _located(mask: np.ndarray, joints: np.ndarray) -> Located:
-    cues = Cues(mask.astype(np.float32), joints.astype(np.float32), np.ones(18, np.float32), "rgb")
-    return Located(CropBox(0, 0, mask.shape[0]), cues, mask)
-
-
-def _foot_joints() -> np.ndarray:
-    """(18, 2) joints of a foot lying left (toes, x = 20) to right (heel, x = 78) across a 100 x 100 photo."""
-    joints = np.full((18, 2), 50.0)
-    joints[[3, 6, 9, 12, 15], 0] = 20.0  # toe tips
-    joints[[3, 6, 9, 12, 15], 1] = [36.0, 42.0, 47.0, 52.0, 56.0]
-    joints[17] = [78.0, 45.0]  # heel
-    joints[16] = [70.0, 40.0]  # ankle
-    return joints
-
-
-def test_framing_refuses_a_foot_cut_off_by_the_edge():
-    mask = np.zeros((100, 100), bool)
-    mask[30:60, 18:80] = True
-    joints = _foot_joints()
-    check_framing(_located(mask, joints), 100, 100, MeasureConfig())  # well inside: fine
-    cut, at_edge = mask.copy(), joints.copy()
-    cut[30:60, 0:80] = True  # the toes run into the left edge: their tips (as the network puts them) on it
-    at_edge[[3, 6, 9, 12, 15], 0] = 3.0
-    with pytest.raises(PipelineError, match="cut off"):
-        check_framing(_located(cut, at_edge), 100, 100, MeasureConfig())
-    check_framing(_located(cut, joints), 100, 100, MeasureConfig())  # silhouette far beyond the tips: not the foot
-    outside = joints.copy()
-    outside[17] = [-20.0, 50.0]  # heel beyond the left edge
-    with pytest.raises(PipelineError, match="cut off"):
-        check_framing(_located(mask, outside), 100, 100, MeasureConfig())
-
-
-def test_framing_takes_the_leg_leaving_the_frame_for_normal():
-    mask = np.zeros((100, 100), bool)
-    mask[30:60, 18:80] = True
-    mask[40:100, 66:76] = True  # the leg, from the ankle down to the bottom edge, far from the foot's joints
-    check_framing(_located(mask, _foot_joints()), 100, 100, MeasureConfig())
 
 
 def test_output_folders_one_per_photo_and_unique(tmp_path):
@@ -168,6 +131,16 @@ def measured(tmp_path_factory):
 
 
 @pytest.mark.slow
+def test_every_result_matches_the_published_schema(measured):
+    import jsonschema
+
+    from footmesh.result import json_schema
+
+    for _, result, _ in measured.values():
+        jsonschema.validate(result, json_schema())
+
+
+@pytest.mark.slow
 def test_bundled_photos_measure_close_to_the_truth(measured):
     for name, (ex, result, folder) in measured.items():
         assert CONTRACT_KEYS <= set(result), name
@@ -198,7 +171,7 @@ def test_bundled_photos_measure_close_to_the_truth(measured):
 def test_a_fit_that_does_not_match_the_photo_is_refused(tmp_path):
     ex = next(e for e in examples() if e.depth is not None)
     strict = MeasureConfig(max_model_outside=-1.0)  # every fit "fails": the refusal path, not a number
-    with pytest.raises(PipelineError, match="could not be fitted to this photo"):
+    with pytest.raises(Refusal, match="could not be fitted to this photo"):
         measure_photo(ex.image, tmp_path, depth=ex.depth, intrinsics=ex.intrinsics, config=strict)
     assert not (tmp_path / "result.json").exists()
 
@@ -207,7 +180,7 @@ def test_a_fit_that_does_not_match_the_photo_is_refused(tmp_path):
 def test_a_plain_photo_of_a_foot_seen_end_on_is_refused(tmp_path):
     ex = next(e for e in examples() if e.depth is None and e.intrinsics is not None)
     strict = MeasureConfig(max_rgb_end_on=-1.0)  # any view counts as end-on: the refusal path
-    with pytest.raises(PipelineError, match="seen end-on"):
+    with pytest.raises(Refusal, match="seen end-on"):
         measure_photo(ex.image, tmp_path, intrinsics=ex.intrinsics, config=strict)
     assert not (tmp_path / "result.json").exists()
 
@@ -227,7 +200,7 @@ def test_an_rgbd_photo_of_a_foot_seen_end_on_is_refused(tmp_path):
     K = sample["K"]
     k_json = {"fx": K[0, 0], "fy": K[1, 1], "cx": K[0, 2], "cy": K[1, 2], "width": 480, "height": 480}
     (tmp_path / "K.json").write_text(json.dumps(k_json))
-    with pytest.raises(PipelineError, match="seen end-on .* far end of the foot is hidden"):
+    with pytest.raises(Refusal, match="seen end-on .* far end of the foot is hidden"):
         measure_photo(
             tmp_path / "photo.png", tmp_path / "out", depth=tmp_path / "depth.png", intrinsics=tmp_path / "K.json"
         )
@@ -290,7 +263,7 @@ def test_an_rgbd_photo_of_a_foot_mostly_hidden_by_the_leg_is_refused(tmp_path):
 
     sample = Renderer(guided_view_config(size=640, reference="none")).render(4242 + 1, 38)
     paths = _write_inputs(sample, tmp_path, with_depth=True)
-    with pytest.raises(PipelineError, match="shows in the photo .* hides the rest|outline"):
+    with pytest.raises(Refusal, match="shows in the photo .* hides the rest|outline"):
         measure_photo(paths["image"], tmp_path / "out", depth=paths["depth"], intrinsics=paths["intrinsics"])
     assert not (tmp_path / "out" / "result.json").exists()
 
@@ -303,7 +276,7 @@ def test_an_rgbd_fit_that_misses_the_outline_or_hides_the_foot_is_refused(tmp_pa
         (MeasureConfig(min_depth_contour_followed=1.01), "outline"),
         (MeasureConfig(min_depth_foot_shown=1.01), "hides the rest"),
     ]:
-        with pytest.raises(PipelineError, match=message):
+        with pytest.raises(Refusal, match=message):
             measure_photo(ex.image, tmp_path, depth=ex.depth, intrinsics=ex.intrinsics, config=strict)
         assert not (tmp_path / "result.json").exists()
 

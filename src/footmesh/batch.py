@@ -12,7 +12,8 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from footmesh import __version__
-from footmesh.load import LoadError, load_photo
+from footmesh.errors import InputError, is_users_fault, write_internal_report
+from footmesh.load import load_photo
 from footmesh.report import request_options
 
 log = logging.getLogger("footmesh.measure")
@@ -48,17 +49,17 @@ def check_output(out: str | Path) -> Path:
     """The output folder, refused before any work when it cannot be one: empty, an existing file, or not
     writable."""
     if str(out).strip() == "":
-        raise ValueError("--out is empty; give the folder to write the results into")
+        raise InputError("--out is empty; give the folder to write the results into")
     path = Path(out)
     if path.exists() and not path.is_dir():
-        raise ValueError(f"--out {out} is an existing file, not a folder; give a folder to write the results into")
+        raise InputError(f"--out {out} is an existing file, not a folder; give a folder to write the results into")
     existing = path
     while not existing.exists():
         existing = existing.parent
     if not existing.is_dir():
-        raise ValueError(f"--out {out}: {existing} is a file, so the folder cannot be made there")
+        raise InputError(f"--out {out}: {existing} is a file, so the folder cannot be made there")
     if not os.access(existing, os.W_OK | os.X_OK):
-        raise ValueError(f"--out {out}: no permission to write in {existing}")
+        raise InputError(f"--out {out}: no permission to write in {existing}")
     return path
 
 
@@ -107,6 +108,7 @@ def measure_batch(
     out_dir = check_output(out)
     folders = output_folders(images, out_dir)
     results: list[tuple[str, dict | None, str | None]] = []
+    internal = 0  # photos that failed by footmesh's fault, not theirs
     for i, (image, folder) in enumerate(zip(images, folders, strict=True)):
         k = None
         if intrinsics:
@@ -128,11 +130,9 @@ def measure_batch(
             result = measure_loaded_photo(photo, folder, request, started=start)
             results.append((image, result, None))
             log.info("%s: %s", image, _one_line(result))
-        except (LoadError, FileNotFoundError, ValueError) as exc:  # PipelineError is a ValueError
-            results.append((image, None, str(exc)))
-            print(f"footmesh: error: {_naming(image, str(exc))}", file=sys.stderr)
-        except OSError as exc:  # writing the results (disk full, permissions changed): the rest can still be done
-            message = f"could not write its results into {folder}: {exc.strerror or exc}"
+        except Exception as exc:  # the photo's fault, the disk's, or footmesh's (logged): the rest is still done
+            message, ours = _failure(exc, folder)
+            internal += ours
             results.append((image, None, message))
             print(f"footmesh: error: {_naming(image, message)}", file=sys.stderr)
     if print_json:
@@ -149,7 +149,27 @@ def measure_batch(
         same = combine(results)
         write_json(out_dir / "same_foot.json", same.to_dict())
         print(format_same_foot(same), file=sys.stderr if print_json else sys.stdout)
+    if internal:
+        return 1
     return 0 if all(err is None for _, _, err in results) else 2
+
+
+def _failure(exc: Exception, folder: Path) -> tuple[str, bool]:
+    """(message, footmesh's fault) for a photo that gave no result."""
+    if is_users_fault(exc):
+        return str(exc), False
+    if isinstance(exc, OSError) and _inside(exc.filename, folder):
+        # writing the results (disk full, permissions changed): the rest can still be done
+        return f"could not write its results into {folder}: {exc.strerror or exc}", False
+    return write_internal_report(exc, __version__), True
+
+
+def _inside(filename: object, folder: Path) -> bool:
+    """Whether an OSError's file is ``folder`` or lies in it."""
+    if not isinstance(filename, str | os.PathLike):
+        return False
+    path, target = Path(filename).resolve(), Path(folder).resolve()
+    return path == target or target in path.parents
 
 
 def _naming(image: str, message: str) -> str:

@@ -7,12 +7,13 @@ import logging
 import sys
 
 from footmesh import __version__
+from footmesh.errors import InputError, is_users_fault, write_internal_report
 
 log = logging.getLogger("footmesh")
 
-
-class UserError(Exception):
-    """An error caused by the input, reported as one clear line and a non-zero exit, never a traceback."""
+DEVELOPER_COMMANDS = ("model", "synth", "train", "eval")
+"""Commands that read the developer's own folders and JSON configurations: their ``ValueError`` and
+``FileNotFoundError`` name the file or field at fault, so they are reported as input errors (``footmesh.errors``)."""
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -36,6 +37,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _add_measure_command(sub: argparse._SubParsersAction) -> None:
+    from footmesh.formats import accepted
+
     m = sub.add_parser(
         "measure",
         help="measure the foot in one or more photos: mesh, joints, measurements, shoe sizes",
@@ -44,9 +47,9 @@ def _add_measure_command(sub: argparse._SubParsersAction) -> None:
         "(A4 sheet, bank card, printed marker) in the photo; otherwise the result is unscaled.",
     )
     m.add_argument(
-        "images", nargs="+", metavar="IMAGE", help="photo(s): JPEG, HEIC, PNG, ... (EXIF orientation honoured)"
+        "images", nargs="+", metavar="IMAGE", help=f"photo(s), each {accepted.PHOTO_HELP} (EXIF orientation honoured)"
     )
-    m.add_argument("--depth", action="append", help="depth map per photo (16-bit PNG in mm, or .npy); repeatable")
+    m.add_argument("--depth", action="append", help=f"depth map per photo, {accepted.DEPTH_HELP}; repeatable")
     m.add_argument(
         "--same-foot",
         action="store_true",
@@ -71,12 +74,12 @@ def _run_measure(args: argparse.Namespace) -> int:
     n = len(args.images)
     depths = args.depth or []
     if depths and len(depths) != n:
-        raise UserError(f"give one --depth per photo: {n} photo(s) but {len(depths)} --depth")
+        raise InputError(f"give one --depth per photo: {n} photo(s) but {len(depths)} --depth")
     intrinsics = args.intrinsics or []
     if args.same_foot and n < 2:
-        raise UserError("--same-foot combines several photos of one foot; give at least two")
+        raise InputError("--same-foot combines several photos of one foot; give at least two")
     if len(intrinsics) not in (0, 1, n):
-        raise UserError(f"give one --intrinsics for all photos or one per photo, not {len(intrinsics)} for {n}")
+        raise InputError(f"give one --intrinsics for all photos or one per photo, not {len(intrinsics)} for {n}")
     return measure_batch(
         args.images,
         args.out,
@@ -140,7 +143,7 @@ def _run_model_build_from_find(args: argparse.Namespace) -> int:
     from footmesh.model.build_find import build_from_find, build_skin_colours
 
     if args.n < 2:
-        raise UserError(f"--n must be at least 2, got {args.n}")
+        raise InputError(f"--n must be at least 2, got {args.n}")
     report = build_from_find(args.find, args.out, n_samples=args.n, seed=args.seed, progress=not args.no_progress)
     log.info(
         "wrote %s (%.2f MB) in %.0f s: %d components, %.3f%% of the variance, held-out error %.3f mm",
@@ -226,7 +229,7 @@ def _run_model_build(args: argparse.Namespace) -> int:
     )
     print(summary.text())
     if summary.asset is None:
-        raise UserError(f"{summary.succeeded} scans registered; a model needs at least 2, nothing written")
+        raise InputError(f"{summary.succeeded} scans registered; a model needs at least 2, nothing written")
     print(f"wrote {summary.out}: {summary.asset!r}")
     return 0
 
@@ -274,25 +277,25 @@ def _run_synth(args: argparse.Namespace) -> int:
             first_person_fraction=args.first_person,
         )
     except ValueError as exc:
-        raise UserError(str(exc)) from None
+        raise InputError(str(exc)) from None
     if args.workers < 1:
-        raise UserError(f"--workers must be at least 1, got {args.workers}")
+        raise InputError(f"--workers must be at least 1, got {args.workers}")
     if args.preview is not None:
         from footmesh.synth.preview import write_preview
         from footmesh.synth.render import Renderer
 
         if not 1 <= args.preview <= 400:
-            raise UserError(f"--preview must be 1..400 samples, got {args.preview}")
+            raise InputError(f"--preview must be 1..400 samples, got {args.preview}")
         if not args.out.lower().endswith(".png"):
-            raise UserError(f"with --preview, --out is the contact sheet and must end in .png, got {args.out}")
+            raise InputError(f"with --preview, --out is the contact sheet and must end in .png, got {args.out}")
         renderer = Renderer(config)
         write_preview(args.out, [renderer.render(args.seed, i) for i in range(args.preview)])
         log.info("wrote %s (%d samples, seed %d)", args.out, args.preview, args.seed)
         return 0
     if args.n is None or args.n < 1:
-        raise UserError("--n must be given and at least 1 (the number of samples of the whole dataset)")
+        raise InputError("--n must be given and at least 1 (the number of samples of the whole dataset)")
     if args.shards < 1 or not 0 <= args.shard_index < args.shards:
-        raise UserError(f"--shard-index must be in 0..{args.shards - 1} for --shards {args.shards}")
+        raise InputError(f"--shard-index must be in 0..{args.shards - 1} for --shards {args.shards}")
     from footmesh.synth.dataset import generate
 
     written = generate(
@@ -360,7 +363,7 @@ def _train_flags(train, args: argparse.Namespace):
     for name in ("steps", "batch_size", "threads"):
         value = flags[name]
         if value is not None and value < 1:
-            raise UserError(f"--{name.replace('_', '-')} must be at least 1, got {value}")
+            raise InputError(f"--{name.replace('_', '-')} must be at least 1, got {value}")
     return replace(train, **{k: v for k, v in flags.items() if v is not None})
 
 
@@ -468,7 +471,7 @@ def _run_eval_cues(args: argparse.Namespace) -> int:
 
     inputs = list(INPUTS) if args.input == "all" else [args.input]
     if args.weights and len(inputs) != 1:
-        raise UserError("--weights needs a single --input (rgb, rgbd or depth)")
+        raise InputError("--weights needs a single --input (rgb, rgbd or depth)")
     weights = {inputs[0]: args.weights} if args.weights else None
     print(run_eval(args.data, inputs, args.views_data, weights, args.json))
     return 0
@@ -480,9 +483,9 @@ def _run_eval_measure(args: argparse.Namespace) -> int:
     modes = [m.strip() for m in args.modes.split(",") if m.strip()]
     bad = [m for m in modes if m not in MODES]
     if bad or not modes:
-        raise UserError(f"--modes must be a comma list of {', '.join(MODES)}; got {args.modes!r}")
+        raise InputError(f"--modes must be a comma list of {', '.join(MODES)}; got {args.modes!r}")
     if args.n < 1 or args.size < 128:
-        raise UserError("--n must be at least 1 and --size at least 128")
+        raise InputError("--n must be at least 1 and --size at least 128")
     run_eval(modes, args.n, args.size, args.views, args.json, progress=not args.no_progress, seed=args.seed)
     return 0
 
@@ -493,7 +496,7 @@ def _run_eval_real(args: argparse.Namespace) -> int:
     try:
         print(run_eval(args.real_set, args.sheet, args.json, progress=not args.no_progress, weights=args.weights))
     except ValueError as exc:
-        raise UserError(str(exc)) from None
+        raise InputError(str(exc)) from None
     return 0
 
 
@@ -502,9 +505,9 @@ def _run_eval_recon(args: argparse.Namespace) -> int:
 
     inputs = list(INPUTS) if args.input == "all" else [args.input]
     if args.weights and len(inputs) != 1:
-        raise UserError("--weights needs a single --input (rgb, rgbd or depth)")
+        raise InputError("--weights needs a single --input (rgb, rgbd or depth)")
     if args.limit is not None and args.limit < 1:
-        raise UserError(f"--limit must be at least 1, got {args.limit}")
+        raise InputError(f"--limit must be at least 1, got {args.limit}")
     weights = {inputs[0]: args.weights} if args.weights else None
     print(run_eval(args.data, inputs, args.views_data, weights, args.json, args.edgeconv_weights, args.limit))
     return 0
@@ -519,36 +522,19 @@ def main(argv: list[str] | None = None) -> int:
     logging.basicConfig(level=logging.DEBUG if args.verbose else logging.INFO, format="%(message)s")
     try:
         return int(args.func(args) or 0)
-    except (UserError, FileNotFoundError, ValueError) as exc:
-        if is_internal(exc):
-            return _internal_error(exc)
-        print(f"footmesh: error: {exc}", file=sys.stderr)
-        return 2
     except KeyboardInterrupt:
         print("footmesh: interrupted", file=sys.stderr)
         return 130
     except Exception as exc:
-        return _internal_error(exc)
+        if is_users_fault(exc) or (args.command in DEVELOPER_COMMANDS and _developer_input_error(exc)):
+            print(f"footmesh: error: {exc}", file=sys.stderr)
+            return 2
+        print(f"footmesh: {write_internal_report(exc, __version__)}", file=sys.stderr)
+        return 1
 
 
-def is_internal(exc: BaseException) -> bool:
-    """A ValueError that is our failure, not the input's: linear algebra that did not converge."""
+def _developer_input_error(exc: BaseException) -> bool:
+    """A developer command's error that names its folder or configuration (not linear algebra that failed)."""
     import numpy as np
 
-    return isinstance(exc, np.linalg.LinAlgError)
-
-
-def _internal_error(exc: BaseException) -> int:
-    """Report a failure of footmesh itself in one line, the traceback in a log file; exit code 1."""
-    import tempfile
-    import traceback
-
-    with tempfile.NamedTemporaryFile("w", prefix="footmesh-internal-", suffix=".log", delete=False) as f:
-        f.write(f"footmesh {__version__}: {' '.join(sys.argv)}\n")
-        f.write("".join(traceback.format_exception(exc)))
-    summary = f"{type(exc).__name__}: {exc}".splitlines()[0][:200] if str(exc) else type(exc).__name__
-    print(
-        f"footmesh: internal error (a fault of footmesh, not of your input): {summary}; details in {f.name}",
-        file=sys.stderr,
-    )
-    return 1
+    return isinstance(exc, ValueError | FileNotFoundError) and not isinstance(exc, np.linalg.LinAlgError)

@@ -60,7 +60,7 @@ import time
 import warnings
 from collections.abc import Sequence
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field, fields, replace
 
 import cv2
 import numpy as np
@@ -70,9 +70,11 @@ from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
 from footmesh.cues import Cues
+from footmesh.geometry.alignment import weighted_procrustes
+from footmesh.geometry.camera import project
+from footmesh.geometry.rotations import skew
 from footmesh.model import lbs
 from footmesh.model import skeleton as sk
-from footmesh.model.canonical import weighted_procrustes
 from footmesh.model.ik import natural_pose_moments
 from footmesh.model.layer import FootModel, default_model
 
@@ -241,6 +243,26 @@ def mesh_side_residuals(vertices_cam: np.ndarray, model: FootModel | None = None
     return dict(zip(SIDES, residuals.tolist(), strict=True))
 
 
+@dataclass(frozen=True)
+class FitQuality:
+    """How well a fit explains the image (unweighted, px / mm), for the pipeline's refusals (``footmesh.refusals``)."""
+
+    contour_within_2px: float
+    """Fraction of the silhouette's contour samples within 2 px of the model's outline."""
+    vertices_outside_2px: float
+    """Fraction of the model's visible vertices more than 2 px outside the silhouette."""
+    joint_error_px: float
+    """Confidence-weighted mean distance of the model's projected joints from the 2D joints."""
+    foot_shown: float
+    """Fraction of the model below the ankle that the silhouette shows (``foot_shown``)."""
+    depth_median_mm: float | None = None
+    """Median |depth residual| of the model's visible surface (None without depth)."""
+
+    def to_dict(self) -> dict[str, float]:
+        """result.json ``fit.quality`` (``depth_median_mm`` only with depth)."""
+        return {f.name: float(getattr(self, f.name)) for f in fields(self) if getattr(self, f.name) is not None}
+
+
 @dataclass(frozen=True, eq=False)
 class FootFit:
     """The foot model fitted to one image, camera frame (OpenCV, mm).
@@ -261,11 +283,7 @@ class FootFit:
         side_losses: final cost of each side tried ({"left": ..., "right": ...} with side="auto").
         covariance: (6 + 22 + K, 6 + 22 + K) Gauss-Newton covariance of the parameters at the optimum
             (``parameter_names(K)``: rotation increment, translation, angles, shape).
-        quality: how well the fit explains the image, to refuse a bad fit: ``contour_within_2px`` (fraction of
-            silhouette contour samples within 2 px of the model's outline), ``vertices_outside_2px`` (fraction of
-            the model's visible vertices more than 2 px outside the silhouette), ``joint_error_px``
-            (confidence-weighted mean), ``depth_median_mm`` (with depth), ``foot_shown`` (fraction of the model
-            below the ankle that the silhouette shows, ``fit.foot_shown``).
+        quality: how well the fit explains the image, to refuse a bad fit (``FitQuality``).
         iterations: LM iterations taken (all sides and starts). seconds: wall time of the whole fit.
     """
 
@@ -281,7 +299,7 @@ class FootFit:
     loss_terms: dict[str, float]
     side_losses: dict[str, float]
     covariance: np.ndarray = field(repr=False)
-    quality: dict[str, float] = field(default_factory=dict)
+    quality: FitQuality
     iterations: int = 0
     seconds: float = 0.0
 
@@ -837,10 +855,7 @@ class _SideProblem:
         shape, angles, scale = q[:, _SHAPE0:-1], q[:, _ANGLES], torch.exp(q[:, -1:, None])
         vertices, joints, vertex_normals = _pose_vertices(self.arrays, self.side, shape, angles, ids, normals)
         vertices, joints = vertices * scale, joints * scale
-        w = p[:, _ROT]
-        zero = torch.zeros_like(w[:, 0])
-        skew = torch.stack([zero, -w[:, 2], w[:, 1], w[:, 2], zero, -w[:, 0], -w[:, 1], w[:, 0], zero], 1)
-        rot = (torch.eye(3, dtype=p.dtype) + skew.reshape(-1, 3, 3)) @ torch.from_numpy(state.rotation)
+        rot = (torch.eye(3, dtype=p.dtype) + skew(p[:, _ROT])) @ torch.from_numpy(state.rotation)
         t = q[:, _TRANS]
         rt = rot.transpose(1, 2)
         return {
@@ -855,8 +870,7 @@ class _SideProblem:
 
     def project(self, points: torch.Tensor) -> torch.Tensor:
         """(B, N, 3) mm, camera frame -> (B, N, 2) px."""
-        h = points @ self.k_t.T
-        return h[..., :2] / h[..., 2:3].clamp_min(1.0)
+        return project(points, self.k_t, min_depth=1.0)[0]
 
     # --- residuals --------------------------------------------------------------------------------------------
 
@@ -1274,12 +1288,9 @@ def _translation_for(rotation: np.ndarray, points: np.ndarray, ev: _Evidence) ->
     least squares of the cross product of each joint's ray with its 3D position, confidence-weighted."""
     rays = np.linalg.solve(ev.K, np.c_[ev.joints, np.ones(len(ev.joints))].T).T
     rays /= np.linalg.norm(rays, axis=1, keepdims=True)
-    x, y, z = rays.T
-    zero = np.zeros_like(x)
-    skew = np.stack([zero, -z, y, z, zero, -x, -y, x, zero], axis=1).reshape(-1, 3, 3)  # skew @ t = ray x t
     w = np.sqrt(np.maximum(ev.joint_weight, PNP_MIN_CONFIDENCE))[:, None]
-    # ray x (R X + t) = 0  ->  skew t = -(ray x R X)
-    a = (w[..., None] * skew).reshape(-1, 3)
+    # ray x (R X + t) = 0  ->  skew(ray) t = -(ray x R X)
+    a = (w[..., None] * skew(rays)).reshape(-1, 3)
     b = -(w * np.cross(rays, points @ rotation.T)).reshape(-1)
     return np.linalg.lstsq(a, b, rcond=None)[0]
 
@@ -1434,7 +1445,7 @@ def _fit(cues, K, depth_mm, cam_from_floor, side, init, config, model) -> FootFi
     joints = out.joints[0].double().numpy() @ state.rotation.T + state.translation
     pose = np.eye(4)
     pose[:3, :3], pose[:3, 3] = state.rotation, state.translation
-    quality["foot_shown"] = foot_shown(vertices, best, ev.mask, ev.K, model, config.contour_max_height_mm)
+    shown = foot_shown(vertices, best, ev.mask, ev.K, model, config.contour_max_height_mm)
     return FootFit(
         side=best,
         shape=state.shape.copy(),
@@ -1448,7 +1459,7 @@ def _fit(cues, K, depth_mm, cam_from_floor, side, init, config, model) -> FootFi
         loss_terms=dict(assoc.terms),
         side_losses={s: fitted[s][2].cost for s in sides},
         covariance=covariance,
-        quality=quality,
+        quality=FitQuality(**quality, foot_shown=shown),
         iterations=iterations,
     )
 
@@ -1483,7 +1494,7 @@ def synthetic_cues(
 
 def canonical_measures(shape: np.ndarray, model: FootModel | None = None) -> tuple[float, float]:
     """(stick length, ball width) in mm of the zero-pose foot of ``shape`` (K,) (``measure`` definitions)."""
-    from footmesh.measure import ball_width_mm, stick_length_mm
+    from footmesh.model.anatomy import ball_width_mm, stick_length_mm
 
     model = model if model is not None else default_model()
     with torch.no_grad():
@@ -1592,7 +1603,7 @@ def evaluate_on_synthetic(
 
 def _length_sd(fit: FootFit, model: FootModel, samples: int = 64) -> float:
     """SD of the canonical stick length under ``fit.shape_covariance`` (mm), by sampling."""
-    from footmesh.measure import stick_length_mm
+    from footmesh.model.anatomy import stick_length_mm
 
     shapes = fit.sample_shapes(samples, rng=0)
     with torch.no_grad():

@@ -36,8 +36,10 @@ from typing import Any, Literal
 import numpy as np
 from PIL import Image, ImageOps, UnidentifiedImageError
 
-from footmesh.formats import heif
+from footmesh.errors import InputError
+from footmesh.formats import accepted, heif
 from footmesh.formats.embedded import DepthSource, align_depth
+from footmesh.geometry.camera import rescale_pixels
 
 log = logging.getLogger(__name__)
 
@@ -80,7 +82,7 @@ _SIXTEEN_BIT_MODES = ("I;16", "I;16L", "I;16B", "I;16N")
 _ALPHA_MODES = ("RGBA", "RGBa", "LA", "La", "PA")
 
 
-class LoadError(ValueError):
+class LoadError(InputError):
     """An input file that cannot be used; the message is one sentence naming the file."""
 
 
@@ -129,13 +131,12 @@ class Intrinsics:
     def resized(self, width: int, height: int) -> Intrinsics:
         """Intrinsics of this image resized to ``width x height`` px (the whole image, each axis scaled on its own)."""
         sx, sy = width / self.width, height / self.height
-        # pixel centres: x_new + 0.5 = (x_old + 0.5) * s, since the image spans -0.5 .. W - 0.5
         return replace(
             self,
             fx=self.fx * sx,
             fy=self.fy * sy,
-            cx=(self.cx + 0.5) * sx - 0.5,
-            cy=(self.cy + 0.5) * sy - 0.5,
+            cx=rescale_pixels(self.cx, sx),
+            cy=rescale_pixels(self.cy, sy),
             width=int(width),
             height=int(height),
         )
@@ -396,6 +397,8 @@ def _decode_photo(data: bytes, path: Path, max_pixels: int) -> tuple[np.ndarray,
     role = "image"
     im = _open_image(data, path, role, max_pixels)
     fmt, mode, raw_size = im.format or "unknown", im.mode, im.size
+    if accepted.format_of(im.format, accepted.PHOTO_FORMATS) is None:
+        raise LoadError(f"{role} {path} is a {fmt} image; footmesh reads {accepted.PHOTO_HELP}")
     orientation, f35, focal, camera, notes = _read_exif(im, path)
     try:
         frames = getattr(im, "n_frames", 1)  # a TIFF counts its pages by walking them: a broken chain raises
@@ -467,6 +470,8 @@ def _depth_array(data: bytes, path: Path) -> np.ndarray:
     if data.startswith(_EXR_MAGIC):
         raise LoadError(f"{role} {path} is OpenEXR, which is not supported; save the depth with numpy.save (.npy)")
     im = _open_image(data, path, role, MAX_PIXELS)
+    if accepted.format_of(im.format, accepted.DEPTH_IMAGE_FORMATS) is None:
+        raise LoadError(f"{role} {path} is a {im.format or 'unknown'} image; footmesh reads {accepted.DEPTH_HELP}")
     if im.mode in _SIXTEEN_BIT_MODES or im.mode in ("I", "F"):
         return np.asarray(im)
     if im.mode in ("L", "P", "1"):

@@ -29,12 +29,15 @@ import numpy as np
 import trimesh
 from scipy.spatial import ConvexHull, QhullError
 
+from footmesh.model.anatomy import (
+    FOOT_HEIGHT_FRACTION,
+    ball_width_mm,
+    check_vertices,
+    heel_x,
+    stick_length_mm,
+)
 from footmesh.model.skeleton import JOINT_INDEX, NUM_JOINTS
 
-BALL_REGION = (0.55, 0.85)
-"""Fractions of stick length (from the heel) spanning the ball of the foot, where ball width is taken."""
-FOOT_HEIGHT_FRACTION = 0.25
-"""Vertices higher than this fraction of the foot's x-extent belong to the leg and are ignored for length."""
 HEEL_WIDTH_FRACTION = 0.18
 """Heel width is taken in the vertical section at this fraction of stick length from the heel (last-making
 practice places it at 16-20 % of foot length; docs/measurements.md)."""
@@ -221,38 +224,6 @@ class FootLandmarks:
 # ----------------------------------------------------------------------------------------------------------
 
 
-def stick_length_mm(vertices: np.ndarray) -> float:
-    """Heel to the tip of the longest toe along the foot axis x (ANSUR "foot length").
-
-    Args:
-        vertices: (V, 3) mm, canonical pose, foot frame (x heel->toe, z up, floor at z = 0).
-    """
-    v = _check_vertices(vertices)
-    extent = np.ptp(v[:, 0])
-    low = v[v[:, 2] <= FOOT_HEIGHT_FRACTION * extent]
-    return float(np.ptp(low[:, 0]))
-
-
-def ball_width_mm(vertices: np.ndarray) -> float:
-    """Maximum breadth across the ball, perpendicular to the foot axis (ANSUR "foot breadth, horizontal").
-
-    Taken over the vertices whose x lies in ``BALL_REGION`` of the stick length from the heel.
-
-    Args:
-        vertices: (V, 3) mm, canonical pose, foot frame.
-    """
-    v = _check_vertices(vertices)
-    length = stick_length_mm(v)
-    x = v[:, 0] - _heel_x(v)
-    band = v[(x >= BALL_REGION[0] * length) & (x <= BALL_REGION[1] * length)]
-    return float(np.ptp(band[:, 1]))
-
-
-def _heel_x(v: np.ndarray) -> float:
-    """x of the heel: the smallest x among the foot's (not the leg's) vertices, as in ``stick_length_mm``."""
-    return float(v[v[:, 2] <= FOOT_HEIGHT_FRACTION * np.ptp(v[:, 0]), 0].min())
-
-
 # ----------------------------------------------------------------------------------------------------------
 # Plane sections
 # ----------------------------------------------------------------------------------------------------------
@@ -354,7 +325,7 @@ def measure_foot(
         ValueError: bad shapes, NaN, a foot not in millimetres or not in the foot frame, landmarks on the
             wrong side, or a section that does not cut the foot.
     """
-    v = _check_vertices(vertices)
+    v = check_vertices(vertices)
     f = _check_faces(faces, len(v))
     if not isinstance(landmarks, FootLandmarks):
         raise ValueError(f"landmarks must be a FootLandmarks (FootLandmarks.from_joints), got {type(landmarks)}")
@@ -368,14 +339,14 @@ def measure_foot(
 
     mesh = trimesh.Trimesh(vertices=v, faces=f, process=False)
     length = stick_length_mm(v)
-    heel_x = _heel_x(v)
+    heel_start = heel_x(v)
     ankle_z = float(landmarks.ankle[2])
     leg_z = LEG_CUT_FACTOR * ankle_z
     x_axis = np.array([1.0, 0.0, 0.0])
     y_axis = np.array([0.0, 1.0, 0.0])
 
     # Heel width: y-extent of the section x = 18 % L, below the malleoli.
-    x_heel = heel_x + HEEL_WIDTH_FRACTION * length
+    x_heel = heel_start + HEEL_WIDTH_FRACTION * length
     heel = plane_section(mesh, np.array([x_heel, 0.0, 0.0]), x_axis, HEEL_WIDTH_MAX_HEIGHT * ankle_z)
     heel = _require(heel, "heel width", f"x = {x_heel:.1f} mm below z = {HEEL_WIDTH_MAX_HEIGHT * ankle_z:.1f} mm")
     heel_width = float(np.ptp(heel[..., 1]))
@@ -394,7 +365,7 @@ def measure_foot(
     arch_height = _lowest_on_vertical_line(arch, float(landmarks.mtp1[1]), f"x = {mid[0]:.1f} mm")
 
     # Instep height and girth: the section x = 50 % L.
-    x_instep = heel_x + INSTEP_FRACTION * length
+    x_instep = heel_start + INSTEP_FRACTION * length
     instep = plane_section(mesh, np.array([x_instep, 0.0, 0.0]), x_axis, leg_z)
     instep = _require(instep, "instep height and girth", f"x = {x_instep:.1f} mm")
     instep_height = float(instep[..., 2].max())
@@ -450,15 +421,6 @@ def _lowest_on_vertical_line(segments: np.ndarray, y0: float, where: str) -> flo
 # ----------------------------------------------------------------------------------------------------------
 # Input checks
 # ----------------------------------------------------------------------------------------------------------
-
-
-def _check_vertices(vertices: np.ndarray) -> np.ndarray:
-    v = np.asarray(vertices, dtype=np.float64)
-    if v.ndim != 2 or v.shape[1] != 3 or len(v) < 4:
-        raise ValueError(f"expected vertices of shape (V, 3) with V >= 4, got {v.shape}")
-    if not np.isfinite(v).all():
-        raise ValueError("vertices contain NaN or infinite values")
-    return v
 
 
 def _check_faces(faces: np.ndarray, num_vertices: int) -> np.ndarray:

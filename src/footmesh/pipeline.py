@@ -2,8 +2,9 @@
 
 ``measure_photo(image, out_dir, depth=..., intrinsics=..., side=...)`` writes ``result.json``, ``mesh.obj``,
 ``mesh.glb``, ``canonical.obj`` and ``overlay.png`` into ``out_dir`` and returns the result dictionary (the JSON
-contract of ``footmesh measure``, docs/measure.md). Bad input raises ``PipelineError`` (a ``ValueError``) with one
-sentence saying what is wrong and what to do.
+contract of ``footmesh measure``, docs/measure.md). A photo that cannot be measured raises
+``footmesh.errors.Refusal`` (what was seen and what to retake; the refusals themselves are ``footmesh.refusals``);
+options that cannot be used raise ``InputError``.
 """
 
 from __future__ import annotations
@@ -20,26 +21,22 @@ import cv2
 import numpy as np
 import torch
 
-from footmesh import __version__, report
+from footmesh import __version__, refusals, report, viz
 from footmesh.config import MeasureConfig
 from footmesh.cues import Cues
 from footmesh.cues.predict import average_cues, predict_cues
 from footmesh.cues.refine import height_image, refine_silhouette
+from footmesh.errors import InputError, Refusal
+from footmesh.geometry.camera import crop_intrinsics, rescale_pixels, resize_intrinsics
 from footmesh.load import Photo, load_photo
 from footmesh.measure import MEASUREMENT_NAMES, FootLandmarks, Measurements, measure_foot
 from footmesh.model import skeleton as sk
 from footmesh.model.layer import default_model
 from footmesh.report import request_options
+from footmesh.result import FootEntry, MeasureResult
 from footmesh.sizes import shoe_sizes
 
 log = logging.getLogger("footmesh.pipeline")
-
-RESULT_FORMAT = "footmesh-result-1"
-_REFERENCE_NAMES = {"a4": "an A4 sheet", "card": "a bank card", "marker": "the printed marker"}
-
-
-class PipelineError(ValueError):
-    """The photo cannot be measured (no foot, two feet, foot cut off...); the message says why."""
 
 
 @dataclass(frozen=True)
@@ -138,11 +135,9 @@ def locate_feet(
     mask = whole_photo_cues(kind, rgb, depth).silhouette >= 0.5
     n, labels, stats = _components(mask)
     areas = stats[1:, cv2.CC_STAT_AREA] if n > 1 else np.zeros(0)
-    if areas.size == 0 or areas.max() < config.min_foot_fraction * h * w:
-        raise PipelineError(
-            "no foot found in the photo; photograph one bare foot from above, standing on the floor, "
-            "filling about a third of the picture"
-        )
+    refusal = refusals.no_foot(float(areas.max()) if areas.size else 0.0, h * w, config)
+    if refusal is not None:
+        raise refusal
     order = np.argsort(areas)[::-1]
     regions = [1 + order[0]]
     if len(order) > 1 and areas[order[1]] >= config.second_foot_ratio * areas[order[0]]:
@@ -153,7 +148,7 @@ def locate_feet(
         if located is not None:
             feet.append(located)
     if not feet:
-        raise PipelineError("no foot found in the photo (the foot region vanished on a closer look)")
+        raise refusals.foot_vanished()
     return feet
 
 
@@ -189,7 +184,7 @@ def decoder_mesh(
     (K (3, 3) of the photo; the images ``kind`` does not use are ignored); None when the crop holds no depth to
     read the scale from."""
     from footmesh.cues.predict import resize_inputs
-    from footmesh.recon.model import predict_batch, resize_intrinsics
+    from footmesh.recon.model import predict_batch
     from footmesh.recon.weights import network_for
 
     net, cfg = network_for(kind)
@@ -199,9 +194,7 @@ def decoder_mesh(
     if crop_depth is not None and not np.any(crop_depth > 0):
         return None
     small_rgb, small_depth = resize_inputs(crop_rgb, crop_depth, cfg.image_size)
-    K_crop = K.copy()
-    K_crop[:2, 2] -= (crop.x0, crop.y0)  # the crop is the same camera with its principal point moved
-    K_small = resize_intrinsics(K_crop, crop.side, cfg.image_size)
+    K_small = resize_intrinsics(crop_intrinsics(K, crop.x0, crop.y0), cfg.image_size / crop.side)
     out = predict_batch(
         net,
         None if small_rgb is None else small_rgb[None],
@@ -214,33 +207,6 @@ def decoder_mesh(
 def joint_sigma_px(crop_side_px: int, config: MeasureConfig) -> float:
     """The fit's expected 2D joint error in working pixels: the networks' error scales with the crop they saw."""
     return max(config.joint_sigma_224_px * crop_side_px / 224.0, 1.0)
-
-
-_LENGTH_TIPS = [3, 6, 9, 12, 15]  # the toe tips
-_HEEL = 17
-
-
-def check_framing(located: Located, width: int, height: int, config: MeasureConfig) -> None:
-    """Refuse a foot cut off by the photo's edge (its length could not be measured); the leg leaving the frame
-    is normal: only silhouette pixels on the edge near the foot's joints (``config.foot_zone_margin``) count."""
-    joints = located.cues.joints2d_px
-    length_px = float(np.linalg.norm(joints[_LENGTH_TIPS] - joints[_HEEL], axis=1).max())
-    zone = np.zeros(located.mask.shape, np.uint8)
-    cv2.fillConvexPoly(zone, cv2.convexHull(np.round(joints).astype(np.int32)), 1)
-    reach = int(round(config.foot_zone_margin * length_px))
-    if reach > 0:
-        zone = cv2.dilate(zone, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * reach + 1, 2 * reach + 1)))
-    m = located.mask & (zone > 0)
-    border = np.concatenate([m[0], m[-1], m[:, 0], m[:, -1]])
-    ends = joints[[3, 6, 17]]  # big toe tip, second toe tip, heel: the ends of the length
-    margin = config.edge_margin_px
-    outside = (ends[:, 0] < -margin) | (ends[:, 0] > width - 1 + margin)
-    outside |= (ends[:, 1] < -margin) | (ends[:, 1] > height - 1 + margin)
-    if border.sum() > config.max_border_pixels or outside.any():
-        raise PipelineError(
-            "the foot is cut off by the edge of the photo; step back or zoom out so that the whole foot, "
-            "heel to toes, is in the picture"
-        )
 
 
 def warm_up(config: MeasureConfig | None = None) -> None:
@@ -314,10 +280,9 @@ def measure_loaded_photo(
     start = time.perf_counter() if started is None else started
     side, input = str(request["side"]), str(request["input"])
     if side not in ("left", "right", "auto"):
-        raise PipelineError(f"side must be left, right or auto, got {side!r}")
-    result, files = run_pipeline(photo, side, config, input)
-    result["request"] = request
-    result["seconds"] = round(time.perf_counter() - start, 3)
+        raise InputError(f"side must be left, right or auto, got {side!r}")
+    measured, files = run_pipeline(photo, side, config, input)
+    result = replace(measured, request=request, seconds=round(time.perf_counter() - start, 3)).to_dict()
     write_outputs(Path(out_dir), result, files)
     return result
 
@@ -335,7 +300,7 @@ class _Files:
     extra_masks: tuple[tuple[str, np.ndarray], ...] = ()  # (file name, mask) of the other feet in the photo
 
 
-def run_pipeline(photo: Photo, side: str, config: MeasureConfig, input: str = "auto") -> tuple[dict, _Files]:
+def run_pipeline(photo: Photo, side: str, config: MeasureConfig, input: str = "auto") -> tuple[MeasureResult, _Files]:
     """Everything after loading: the result dict and the arrays of the files to write.
 
     Each foot found is measured (two when both are in view, ``locate_feet``); the result's own keys are the foot
@@ -347,7 +312,7 @@ def run_pipeline(photo: Photo, side: str, config: MeasureConfig, input: str = "a
     t = time.perf_counter()
     kind = input if input != "auto" else ("rgbd" if photo.depth_mm is not None else "rgb")
     if kind in ("rgbd", "depth") and photo.depth_mm is None:
-        raise PipelineError(f"{kind} input needs a depth map (--depth)")
+        raise InputError(f"{kind} input needs a depth map (--depth)")
     max_side = config.rgb_working_max_side if kind == "rgb" else config.working_max_side
     rgb, depth, K, to_photo = working_photo(photo, max_side)
     with torch.inference_mode():
@@ -373,7 +338,7 @@ def run_pipeline(photo: Photo, side: str, config: MeasureConfig, input: str = "a
     if len(feet) > 1 and side != "auto":
         feet, why = _foot_of_side(feet, side)
         notes.append(why)
-    outcomes: list[tuple[dict, _Files, Located, Any] | PipelineError] = []
+    outcomes: list[tuple[MeasureResult, _Files, Located, Any] | Refusal] = []
     for located in feet:
         try:
             outcomes.append(
@@ -381,11 +346,11 @@ def run_pipeline(photo: Photo, side: str, config: MeasureConfig, input: str = "a
                     photo, located, side, config, kind, rgb, depth, K, to_photo, reference, list(notes), dict(timings)
                 )
             )
-        except PipelineError as exc:
+        except Refusal as exc:
             outcomes.append(exc)
-    measured = [o for o in outcomes if not isinstance(o, PipelineError)]
+    measured = [o for o in outcomes if not isinstance(o, Refusal)]
     if not measured:
-        raise next(o for o in outcomes if isinstance(o, PipelineError))
+        raise next(o for o in outcomes if isinstance(o, Refusal))
     if len(outcomes) == 1:
         return measured[0][0], measured[0][1]
     return _both_feet(outcomes, K, reference, side)
@@ -420,58 +385,58 @@ def _foot_of_side(feet: list[Located], side: str) -> tuple[list[Located], str]:
     )
 
 
-def _both_feet(outcomes: list, K: np.ndarray, reference, requested: str) -> tuple[dict, _Files]:
+def _both_feet(outcomes: list, K: np.ndarray, reference, requested: str) -> tuple[MeasureResult, _Files]:
     """One result for a photo of two feet: the keys of the foot asked for (``requested`` side) or else of the
     best-measured one, ``feet`` listing both, both drawn on the overlay."""
-    measured = [o for o in outcomes if not isinstance(o, PipelineError)]
+    measured = [o for o in outcomes if not isinstance(o, Refusal)]
 
     def rank(outcome) -> tuple:
         result = outcome[0]
-        length = result["measurements"]["stick_length"]
-        u = length["uncertainty_mm"] if length["uncertainty_mm"] is not None else math.inf
-        return (requested != "auto" and result["side"] != requested, not result["scaled"], u, result["fit"]["loss"])
+        u = result.measurements["stick_length"]["uncertainty_mm"]
+        u = u if u is not None else math.inf
+        return (requested != "auto" and result.side != requested, not result.scaled, u, result.fit["loss"])
 
     primary = min(measured, key=rank)
     result, files = primary[0], primary[1]
     feet, overlay, masks = [], files.overlay, []
     for index, outcome in enumerate(outcomes):
-        if isinstance(outcome, PipelineError):
-            feet.append({"index": index, "measured": False, "error": str(outcome)})
+        if isinstance(outcome, Refusal):
+            feet.append(FootEntry(index=index, measured=False, error=str(outcome)))
             continue
         other, other_files, located, fit = outcome
         name = "mask.png" if outcome is primary else f"mask_{index}.png"
         feet.append(
-            {
-                "index": index,
-                "measured": True,
-                "primary": outcome is primary,
-                "side": other["side"],
-                "side_source": other["side_source"],
-                "scale_source": other["scale_source"],
-                "scaled": other["scaled"],
-                "measurements": other["measurements"],
-                "sizes": other["sizes"],
-                "joints2d_px": other["joints2d_px"],
-                "files": {"mask_png": name},
-            }
+            FootEntry(
+                index=index,
+                measured=True,
+                primary=outcome is primary,
+                side=other.side,
+                side_source=other.side_source,
+                scale_source=other.scale_source,
+                scaled=other.scaled,
+                measurements=other.measurements,
+                sizes=other.sizes,
+                joints2d_px=other.joints2d_px,
+                files={"mask_png": name},
+            )
         )
         if outcome is not primary:
             overlay = draw_overlay(overlay, located, fit, K, reference)
             masks.append((name, other_files.mask))
-    result["feet"] = feet
-    sides = " and ".join(f"a {foot['side']}" for foot in feet if foot["measured"])
-    result["messages"].append(
-        f"two feet in view: {sides} foot measured; the result's own keys are the {result['side']} foot "
+    result = replace(result, feet=tuple(feet))
+    fitted_sides = [foot.side for foot in feet if foot.measured]
+    sides = " and ".join(f"a {side}" for side in fitted_sides)
+    result = result.with_message(
+        f"two feet in view: {sides} foot measured; the result's own keys are the {result.side} foot "
         "(`feet` lists both; --side picks one)"
     )
-    fitted_sides = [foot["side"] for foot in feet if foot["measured"]]
     if len(fitted_sides) == 2 and fitted_sides[0] == fitted_sides[1]:
-        result["messages"].append(
+        result = result.with_message(
             f"both feet were fitted as {fitted_sides[0]} feet, so one of them is wrong; --side picks the one wanted"
         )
-    refused = [foot["error"] for foot in feet if not foot["measured"]]
+    refused = [foot.error for foot in feet if not foot.measured]
     if refused:
-        result["messages"].append(f"the other foot was not measured: {refused[0]}")
+        result = result.with_message(f"the other foot was not measured: {refused[0]}")
     return result, replace(files, overlay=overlay, extra_masks=tuple(masks))
 
 
@@ -488,12 +453,14 @@ def _measure_located(
     reference,
     messages: list[str],
     timings: dict[str, float],
-) -> tuple[dict, _Files, Located, Any]:
+) -> tuple[MeasureResult, _Files, Located, Any]:
     """Fit, check and measure one located foot: (result dict, files, the located foot, the fit)."""
     from footmesh.fit import FitConfig, FitInit, canonical_measures, fit_foot, mesh_side_residuals
 
     h, w = rgb.shape[:2]
-    check_framing(located, w, h, config)
+    refusal = refusals.cut_off(located.mask, located.cues.joints2d_px, w, h, config)
+    if refusal is not None:
+        raise refusal
     t = time.perf_counter()
     init = None
     side_source = "given" if side != "auto" else "fit"
@@ -526,75 +493,23 @@ def _measure_located(
 
     seen_reference = reference  # its floor's orientation stays evidence even if its scale is rejected below
     fit = fitted(None if reference is None else reference.cam_from_floor)
-    low, high = config.plausible_length_mm
     length_mm = canonical_measures(fit.shape)[0] if fit.scaled else None
-    implausible = length_mm is not None and not low <= length_mm <= high
-    if implausible and reference is None:
-        raise PipelineError(
-            f"the foot fitted to this photo would be {length_mm:.0f} mm long, outside the {low:.0f}-{high:.0f} mm "
-            "of adult feet, so the fit went wrong; retake it from above and to the side, the whole foot flat on "
-            "the floor and the leg out of the way"
-        )
-    outside = fit.quality.get("vertices_outside_2px", 0.0)
-    if reference is not None and (implausible or outside > config.max_model_outside):
-        # the object taken for a reference was something else (the cut top of a trouser leg passed as a card): the
-        # floor it implies makes no adult foot, or none that stands on it and covers the foot in the photo
-        name = _REFERENCE_NAMES[reference.kind]
-        why = (
-            f"would make the foot {length_mm:.0f} mm long, outside the {low:.0f}-{high:.0f} mm of adult feet"
-            if implausible
-            else f"implies a floor no fitted foot stands on ({100 * outside:.0f} % of it fell outside the foot)"
-        )
-        messages.append(f"the rectangle taken for {name} {why}, so it was ignored")
-        reference = None
-        fit = fitted(None)
+    if reference is None and (refusal := refusals.implausible_length(length_mm, config)) is not None:
+        raise refusal
+    if reference is not None:
+        contradicted = refusals.contradicted_reference(reference.kind, length_mm, fit.quality, config)
+        if contradicted is not None:
+            messages.append(contradicted)
+            reference = None
+            fit = fitted(None)
     timings["fit_s"] = time.perf_counter() - t
-    end_on = _end_on(fit)
-    end_on_deg = math.degrees(math.acos(min(end_on, 1.0)))
-    if kind == "rgb" and seen_reference is not None and end_on > config.max_rgb_end_on:
-        # the floor the reference shows, not the fit, says how end-on a foot lying on it can be seen: from above
-        # never. A fit that says otherwise lifted the foot off that floor, as when the heel is hidden behind the
-        # leg (refitting it flat on the floor was tried: it then makes the foot up, 30+ mm short on real photos)
-        most = floor_end_on_bound(located.mask, K, seen_reference.cam_from_floor)
-        if most <= config.max_rgb_end_on:
-            raise PipelineError(
-                f"the foot could not be fitted lying on the floor that {_REFERENCE_NAMES[seen_reference.kind]} in the "
-                "photo "
-                f"shows (the fit points it {end_on_deg:.0f} deg from the line of sight; on that floor it lies at "
-                f"least {math.degrees(math.acos(most)):.0f} deg from it): the heel is probably hidden behind the "
-                "leg; photograph the foot from the side and above, with the heel in view"
-            )
-    if kind == "rgb" and end_on > config.max_rgb_end_on:
-        raise PipelineError(
-            f"the foot is seen end-on (its length points {end_on_deg:.0f} deg from the line of sight), so its "
-            "length cannot be measured from a plain photo; photograph it from the side and above"
-        )
-    if kind != "rgb" and end_on > (config.max_rgbd_end_on if kind == "rgbd" else config.max_depth_end_on):
-        raise PipelineError(
-            f"the foot is seen end-on (its length points {end_on_deg:.0f} deg from the line of sight), so the far "
-            "end of the foot is hidden behind the near one and its length cannot be measured; photograph it from "
-            "the side and above"
-        )
-    outside = fit.quality.get("vertices_outside_2px", 0.0)
-    if outside > config.max_model_outside:
-        raise PipelineError(
-            f"the foot model could not be fitted to this photo ({100 * outside:.0f} % of the fitted foot falls "
-            "outside the foot in the photo); retake it from above and to the side, the whole foot flat on the floor"
-        )
-    followed = fit.quality.get("contour_within_2px", 1.0)
-    if kind != "rgb" and followed < config.min_depth_contour_followed:
-        raise PipelineError(
-            f"the foot model could not be fitted to this photo (only {100 * followed:.0f} % of the foot's outline "
-            "lies within 2 px of the fitted foot's); retake it from above and to the side, the whole foot flat on "
-            "the floor and the leg out of the way"
-        )
-    shown = fit.quality.get("foot_shown", 1.0)
-    if kind != "rgb" and shown < config.min_depth_foot_shown:
-        raise PipelineError(
-            f"only {100 * shown:.0f} % of the fitted foot below the ankle shows in the photo (the leg or a trouser "
-            "hides the rest), so its length cannot be measured; retake it from the side and above, the trouser "
-            "rolled up and the heel in view"
-        )
+    floor = None
+    if seen_reference is not None:
+        # the floor the reference shows, not the fit, says how end-on a foot lying on it can be seen
+        floor = (seen_reference.kind, floor_end_on_bound(located.mask, K, seen_reference.cam_from_floor))
+    refusal = refusals.fitted_foot(fit.quality, _end_on(fit), kind, config, floor)
+    if refusal is not None:
+        raise refusal
 
     t = time.perf_counter()
     model = default_model()
@@ -606,10 +521,7 @@ def _measure_located(
     try:
         measured = measure_foot(canonical, faces, FootLandmarks.from_joints(rest_joints), side=fit.side)
     except ValueError as exc:  # a shape far outside the population (a failed fit) has no well-defined measurements
-        raise PipelineError(
-            f"the fitted foot could not be measured ({exc}); retake the photo from the side and above, the whole "
-            "foot flat on the floor and in view"
-        ) from exc
+        raise refusals.unmeasurable(str(exc)) from exc
     scale_source = "depth" if kind != "rgb" else (reference.kind if reference is not None else "none")
     if not fit.scaled:  # the fit could not use the evidence: say so rather than name a source it did not use
         scale_source = "none"
@@ -627,40 +539,39 @@ def _measure_located(
         )
     timings["measure_s"] = time.perf_counter() - t
 
-    joints2d_photo = (located.cues.joints2d_px + 0.5) * to_photo - 0.5
+    joints2d_photo = rescale_pixels(located.cues.joints2d_px, to_photo)
     overlay = draw_overlay(rgb, located, fit, K, reference)
-    result = {
-        "format": RESULT_FORMAT,
-        "version": __version__,
-        "input_sha256": dict(photo.input_sha256),
-        "image": {"width": int(photo.rgb.shape[1]), "height": int(photo.rgb.shape[0])},
-        "intrinsics": {**photo.intrinsics.to_dict()},
-        "depth": None if photo.depth_source is None or kind == "rgb" else photo.depth_source.to_dict(),
-        "input": kind,
-        "side": fit.side,
-        "side_losses": {k: float(v) for k, v in fit.side_losses.items()},
-        "side_source": side_source,
-        "scale_source": scale_source,
-        "scaled": bool(fit.scaled),
-        "reference": None if reference is None else _reference_dict(reference, to_photo),
-        "measurements": measured.to_dict(),
-        "ratios": measured.ratios(),
-        "sizes": sizes.to_dict(),
-        "joints2d_px": joints2d_photo.round(2).tolist(),
-        "joint_confidence": np.round(located.cues.joint_confidence, 3).tolist(),
-        "joints3d_mm": np.round(fit.joints_cam, 2).tolist() if fit.scaled else None,
-        "angles": dict(zip(sk.DOF_NAMES, np.round(fit.angles, 4).tolist(), strict=True)),
-        "shape": np.round(fit.shape, 4).tolist(),
-        "fit": {
+    result = MeasureResult(
+        version=__version__,
+        input_sha256=dict(photo.input_sha256),
+        image={"width": int(photo.rgb.shape[1]), "height": int(photo.rgb.shape[0])},
+        intrinsics={**photo.intrinsics.to_dict()},
+        depth=None if photo.depth_source is None or kind == "rgb" else photo.depth_source.to_dict(),
+        input=kind,
+        side=fit.side,
+        side_losses={k: float(v) for k, v in fit.side_losses.items()},
+        side_source=side_source,
+        scale_source=scale_source,
+        scaled=bool(fit.scaled),
+        reference=None if reference is None else _reference_dict(reference, to_photo),
+        measurements=measured.to_dict(),
+        ratios=measured.ratios(),
+        sizes=sizes.to_dict(),
+        joints2d_px=joints2d_photo.round(2).tolist(),
+        joint_confidence=np.round(located.cues.joint_confidence, 3).tolist(),
+        joints3d_mm=np.round(fit.joints_cam, 2).tolist() if fit.scaled else None,
+        angles=dict(zip(sk.DOF_NAMES, np.round(fit.angles, 4).tolist(), strict=True)),
+        shape=np.round(fit.shape, 4).tolist(),
+        fit={
             "loss": float(fit.loss),
             "iterations": int(fit.iterations),
             "terms": fit.loss_terms,
-            "quality": {k: float(v) for k, v in fit.quality.items()},
+            "quality": fit.quality.to_dict(),
         },
-        "timings_s": {k: round(v, 3) for k, v in timings.items()},
-        "messages": messages,
-        "units": "mm" if fit.scaled else "unscaled (mesh in arbitrary units)",
-        "files": {
+        timings_s={k: round(v, 3) for k, v in timings.items()},
+        messages=messages,
+        units="mm" if fit.scaled else "unscaled (mesh in arbitrary units)",
+        files={
             "result_json": "result.json",
             "mesh_obj": "mesh.obj",
             "mesh_glb": "mesh.glb",
@@ -668,7 +579,7 @@ def _measure_located(
             "overlay_png": "overlay.png",
             "mask_png": "mask.png",
         },
-    }
+    )
     # the foot's silhouette in photo pixels: nearest-neighbour, so it stays the network's 0/1 decision
     mask = cv2.resize(located.mask.astype(np.uint8) * 255, photo.rgb.shape[1::-1], interpolation=cv2.INTER_NEAREST)
     files = _Files(fit.vertices_cam, canonical, model.faces(fit.side).numpy(), faces, overlay, mask)
@@ -678,7 +589,7 @@ def _measure_located(
 def _reference_dict(reference, to_photo: float) -> dict:
     return {
         "kind": reference.kind,
-        "corners_px": ((np.asarray(reference.corners_px) + 0.5) * to_photo - 0.5).round(2).tolist(),
+        "corners_px": rescale_pixels(np.asarray(reference.corners_px), to_photo).round(2).tolist(),
         "size_mm": list(reference.size_mm),
         "scale_rel_sd": float(reference.scale_rel_sd),
     }
@@ -715,47 +626,14 @@ def measurement_uncertainty(fit, measured: Measurements, scale_source: str, refe
     return out_u
 
 
-JOINT_COLOURS = [
-    (255, 255, 255),
-    *[(255, 80, 80)] * 3,
-    *[(255, 170, 0)] * 3,
-    *[(230, 230, 0)] * 3,
-    *[(0, 200, 0)] * 3,
-    *[(0, 160, 255)] * 3,
-    (200, 0, 255),
-    (200, 0, 255),
-]
-
-
 def draw_overlay(rgb: np.ndarray, located: Located, fit, K: np.ndarray, reference) -> np.ndarray:
-    """The photo with the silhouette (cyan), the fitted mesh's outline (magenta), the joints (by toe) and the
-    reference object (yellow)."""
-    out = rgb.copy()
-    h, w = out.shape[:2]
-    thick = max(1, int(round(max(h, w) / 400)))
-    contours, _ = cv2.findContours(located.mask.astype(np.uint8), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
-    cv2.drawContours(out, contours, -1, (0, 255, 255), thick)
+    """``viz.draw_overlay`` of one fitted foot: its silhouette, the fitted mesh's outline, joints and reference."""
     from footmesh.fit import projected_mask
 
-    raster = projected_mask(fit.vertices_cam, default_model().faces(fit.side).numpy(), K, (h, w))
-    if raster is not None:
-        mesh_contours, _ = cv2.findContours(raster.astype(np.uint8), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
-        cv2.drawContours(out, mesh_contours, -1, (255, 0, 255), thick)
-    joints = located.cues.joints2d_px
-    for child, parent in enumerate(sk.PARENTS):
-        if parent >= 0:
-            a, b = joints[parent], joints[child]
-            cv2.line(out, _pt(a), _pt(b), JOINT_COLOURS[child], thick, cv2.LINE_AA)
-    for j, p in enumerate(joints):
-        cv2.circle(out, _pt(p), 2 * thick + 1, JOINT_COLOURS[j], -1, cv2.LINE_AA)
-    if reference is not None:
-        corners = np.asarray(reference.corners_px)
-        cv2.polylines(out, [np.round(corners).astype(np.int32)], True, (255, 255, 0), thick, cv2.LINE_AA)
-    return out
-
-
-def _pt(p: np.ndarray) -> tuple[int, int]:
-    return int(round(float(p[0]))), int(round(float(p[1])))
+    h, w = rgb.shape[:2]
+    model_mask = projected_mask(fit.vertices_cam, default_model().faces(fit.side).numpy(), K, (h, w))
+    corners = None if reference is None else np.asarray(reference.corners_px)
+    return viz.draw_overlay(rgb, located.mask, located.cues.joints2d_px, model_mask, corners)
 
 
 def write_outputs(out: Path, result: dict, files: _Files) -> None:

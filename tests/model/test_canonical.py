@@ -7,9 +7,10 @@ import pytest
 import torch
 from _toy_model import model_asset
 
+from footmesh.geometry.alignment import weighted_procrustes
 from footmesh.measure import stick_length_mm
 from footmesh.model import ik, lbs
-from footmesh.model.canonical import Canonical, canonicalise, weighted_procrustes
+from footmesh.model.canonical import Canonical, canonicalise
 from footmesh.model.layer import FootModel
 
 NUM_SHAPE = 8  # components drawn and fitted (keeps the test fast on the full packaged model)

@@ -7,6 +7,7 @@ import pytest
 import torch
 import trimesh
 
+from footmesh.geometry.mesh import vertex_normals
 from footmesh.recon import hierarchy as hier
 from footmesh.recon.hierarchy import (
     MeshHierarchy,
@@ -109,7 +110,7 @@ def test_spirals_start_at_the_vertex_and_walk_the_one_ring_counter_clockwise(hie
 def test_spirals_start_towards_plus_x(sphere):
     v, f = sphere
     spirals = spiral_sequences(v, f, length=7)
-    normals = hier._vertex_normals(v, f)
+    normals = vertex_normals(v, f)
     checked = 0
     for i in range(len(v)):
         if abs(normals[i, 0]) > hier.FALLBACK_COSINE:

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 import torch
 
+from footmesh.geometry.mesh import batch_vertex_normals as vertex_normals
 from footmesh.model.layer import default_model, mirror_faces
 from footmesh.recon.losses import (
     LossWeights,
@@ -16,7 +17,6 @@ from footmesh.recon.losses import (
     mesh_edges,
     mesh_loss,
     normal_loss,
-    vertex_normals,
 )
 
 TERMS = (l1_vertex_loss, edge_length_loss, normal_loss, laplacian_loss)

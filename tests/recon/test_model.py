@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 import torch
 
+from footmesh.geometry.camera import resize_intrinsics
 from footmesh.recon.decoder import DecoderConfig, DecoderOutput
 from footmesh.recon.edgeconv import EdgeConvConfig, PointCloudOutput
 from footmesh.recon.model import (
@@ -18,7 +19,6 @@ from footmesh.recon.model import (
     _coordinates,
     from_camera,
     recon_input,
-    resize_intrinsics,
     to_camera,
 )
 from footmesh.recon.weights import load_network, network_for, read_weights, save_weights
@@ -64,10 +64,10 @@ def test_resized_intrinsics_project_like_resized_pixels():
     K = camera(f=120.0, cx=111.5, cy=111.5)[0].numpy().astype(np.float64)  # noqa: N806
     point = np.array([40.0, -25.0, 430.0])
     uv = (K @ point)[:2] / point[2]
-    k = resize_intrinsics(K, 224, 128)
+    k = resize_intrinsics(K, 128 / 224)
     np.testing.assert_allclose((k @ point)[:2] / point[2], (uv + 0.5) * 128 / 224 - 0.5, atol=1e-9)
     assert k[0, 2] == pytest.approx(63.5)
-    assert torch.allclose(resize_intrinsics(torch.from_numpy(K), 224, 128), torch.from_numpy(k))
+    assert torch.allclose(resize_intrinsics(torch.from_numpy(K), 128 / 224), torch.from_numpy(k))
 
 
 def test_input_is_relative_depth_and_carries_the_scale_separately():

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 import trimesh
 
+from footmesh.geometry.camera import project
 from footmesh.synth import raster
 from footmesh.synth.render import LABEL_LEG
 from footmesh.synth.textures import reference_size
@@ -41,7 +42,7 @@ def test_silhouette_is_the_foots_own_pixels(samples, renderer):
     """Render the foot alone: the silhouette is exactly its pixels except where the leg hides them."""
     for s in samples:
         side = "right" if int(s["side"]) else "left"
-        xy, z = raster.project(s["vertices"].astype(np.float64), s["K"])
+        xy, z = project(s["vertices"].astype(np.float64), s["K"])
         size = s["rgb"].shape[0]
         alone = raster.rasterize(xy, z, renderer._faces[side], size, size).face >= 0
         sil = s["silhouette"]

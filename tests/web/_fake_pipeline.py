@@ -18,6 +18,7 @@ import torch
 from PIL import Image, ImageDraw, ImageOps
 
 from footmesh import __version__, report
+from footmesh.errors import InputError, Refusal
 from footmesh.measure import FootLandmarks, measure_foot
 from footmesh.model import skeleton as sk
 from footmesh.model.layer import default_model
@@ -59,9 +60,9 @@ def fake_measure(
     with Image.open(image) as img:
         rgb = ImageOps.exif_transpose(img).convert("RGB")
     if np.asarray(rgb.convert("L"), dtype=np.float64).std() < NO_FOOT_GREY_SD:
-        raise ValueError("no foot found in the photo: take it from above with the whole foot in the picture")
+        raise Refusal("no foot found in the photo", "take it from above with the whole foot in the picture")
     if depth_unit not in ("mm", "m"):
-        raise ValueError(f"depth_unit must be 'mm' or 'm', got {depth_unit!r}")
+        raise InputError(f"depth_unit must be 'mm' or 'm', got {depth_unit!r}")
     time.sleep(delay_s)
     side_used = "left" if side == "auto" else side
     if depth is not None:

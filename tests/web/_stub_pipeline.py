@@ -11,6 +11,8 @@ from pathlib import Path
 
 from PIL import Image, ImageStat
 
+from footmesh.errors import Refusal
+
 NO_FOOT_GREY_SD = 6.0
 
 
@@ -25,7 +27,7 @@ class StubMeasure:
     def __call__(self, image: Path, out_dir: Path, **options) -> dict:
         with Image.open(image) as img:
             if ImageStat.Stat(img.convert("L")).stddev[0] < NO_FOOT_GREY_SD:
-                raise ValueError("no foot found in the photo")
+                raise Refusal("no foot found in the photo")
         time.sleep(self.delay_s)
         if self.crash:
             os._exit(3)

@@ -15,6 +15,8 @@ import pytest
 import trimesh
 from PIL import Image
 
+from footmesh.errors import Refusal
+
 pytest.importorskip("fastapi", reason="the web extra (fastapi, python-multipart, httpx) is not installed")
 
 from _fake_pipeline import FakeMeasure, fake_measure  # noqa: E402
@@ -170,7 +172,7 @@ def test_non_image_refused(make_client, data, looks_like):
     response = post_photo(make_client(), data)  # named foot.jpg, declared image/jpeg: neither is trusted
     assert response.status_code == 415
     detail = response.json()["detail"]
-    assert "JPEG, PNG, WebP, TIFF or HEIC" in detail and looks_like in detail
+    assert "JPEG, PNG, WebP, TIFF, HEIC or BMP" in detail and looks_like in detail
 
 
 def test_photo_without_a_foot(make_client, blank_photo, demo_photo):
@@ -201,7 +203,7 @@ def test_bad_fields_and_side_files(make_client, demo_photo):
 
 
 def _refuse_naming_the_files(image, out_dir, *, depth=None, intrinsics=None, **options):
-    raise ValueError(f"image {image} is only 1 x 1 px; depth map {depth}; in {Path(image).parent}")
+    raise Refusal(f"image {image} is only 1 x 1 px; depth map {depth}; in {Path(image).parent}")
 
 
 def test_only_the_hosts_served_are_answered_and_cross_site_posts_are_refused(make_client, demo_photo):

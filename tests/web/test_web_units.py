@@ -29,12 +29,24 @@ def image_bytes(fmt: str, size=(40, 30), mode="RGB") -> bytes:
         pillow_heif.from_pillow(Image.new(mode, size, 90)).save(buffer, quality=90)
         return buffer.getvalue()
     buffer = io.BytesIO()
+    if fmt == "MPO":  # a phone's JPEG with a multi-picture index (a second, smaller picture)
+        Image.new(mode, size, 90).save(buffer, format="MPO", save_all=True, append_images=[Image.new(mode, (8, 6))])
+        return buffer.getvalue()
     Image.new(mode, size, 90).save(buffer, format=fmt)
     return buffer.getvalue()
 
 
 @pytest.mark.parametrize(
-    ("fmt", "suffix"), [("JPEG", ".jpg"), ("PNG", ".png"), ("WEBP", ".webp"), ("TIFF", ".tiff"), ("HEIF", ".heic")]
+    ("fmt", "suffix"),
+    [
+        ("JPEG", ".jpg"),
+        ("MPO", ".jpg"),
+        ("PNG", ".png"),
+        ("WEBP", ".webp"),
+        ("TIFF", ".tiff"),
+        ("HEIF", ".heic"),
+        ("BMP", ".bmp"),
+    ],
 )
 def test_photo_formats_get_their_own_suffix(tmp_path, fmt, suffix):
     checked = uploads.check_photo(write(tmp_path / "photo.upload", image_bytes(fmt)), max_pixels=10_000)
@@ -90,25 +102,35 @@ def test_depth_npy(tmp_path):
         uploads.check_depth(write(tmp_path / "cut.upload", truncated), 10_000)
 
 
-def test_depth_png_and_exr(tmp_path):
+def test_depth_png_accepted_and_exr_refused_as_the_loader_refuses_it(tmp_path):
     png = io.BytesIO()
     Image.fromarray(np.full((30, 40), 700, np.uint16)).save(png, format="PNG")
     checked = uploads.check_depth(write(tmp_path / "d.upload", png.getvalue()), 10_000)
     assert (checked.kind, checked.width, checked.height) == ("PNG", 40, 30)
+    exr = uploads.EXR_MAGIC + struct.pack("<i", 2) + b"compression\0compression\0" + struct.pack("<i", 1) + bytes(65)
+    with pytest.raises(uploads.UploadError, match="OpenEXR .* numpy.save") as refused:
+        uploads.check_depth(write(tmp_path / "e.upload", exr), 10_000)
+    assert refused.value.status == 415 and "16-bit PNG or TIFF" in str(refused.value)
 
-    def exr(window: tuple[int, int, int, int] | None) -> bytes:
-        header = uploads.EXR_MAGIC + struct.pack("<i", 2)
-        header += b"compression\0compression\0" + struct.pack("<i", 1) + b"\0"
-        if window is not None:
-            header += b"dataWindow\0box2i\0" + struct.pack("<i4i", 16, *window)
-        return header + b"\0" + bytes(64)
 
-    checked = uploads.check_depth(write(tmp_path / "e.upload", exr((0, 0, 39, 29))), 10_000)
-    assert (checked.kind, checked.path.suffix, checked.width, checked.height) == ("EXR", ".exr", 40, 30)
-    with pytest.raises(uploads.UploadError, match="megapixels"):
-        uploads.check_depth(write(tmp_path / "f.upload", exr((0, 0, 9999, 9999))), 10_000)
-    with pytest.raises(uploads.UploadError, match="dataWindow"):
-        uploads.check_depth(write(tmp_path / "g.upload", exr(None)), 10_000)
+def test_the_web_and_the_loader_accept_the_same_formats(tmp_path):
+    """One table (formats.accepted): every photo the upload check takes, the loader reads, and the reverse."""
+    from footmesh.load import LoadError, load_image
+
+    for fmt in ("JPEG", "MPO", "PNG", "WEBP", "TIFF", "HEIF", "BMP", "GIF", "ICO", "TGA"):
+        path = write(tmp_path / f"{fmt}.upload", image_bytes(fmt, (96, 72)))
+        try:
+            load_image(path)
+            loads = True
+        except LoadError as exc:
+            loads = False
+            assert "footmesh reads a JPEG, PNG" in str(exc)
+        try:
+            uploads.check_photo(path, 100_000)
+            uploaded = True
+        except uploads.UploadError:
+            uploaded = False
+        assert loads == uploaded == (fmt not in ("GIF", "ICO", "TGA")), fmt
 
 
 def test_intrinsics(tmp_path):
@@ -187,7 +209,7 @@ def test_settings_are_checked():
 
 
 def test_serve_command_arguments():
-    from footmesh.cli import UserError
+    from footmesh.errors import InputError
     from footmesh.web.cli import add_serve_command, run_serve, settings_from_args
 
     parser = argparse.ArgumentParser()
@@ -199,15 +221,23 @@ def test_serve_command_arguments():
     assert settings.allowed_hosts == ("127.0.0.1", "localhost", "::1")  # this machine only, by default
     named = settings_from_args(parser.parse_args(["serve", "--host", "192.168.1.5", "--allowed-host", "feet.example"]))
     assert named.allowed_hosts[-2:] == ("192.168.1.5", "feet.example")
-    with pytest.raises(UserError, match="port"):
+    with pytest.raises(InputError, match="port"):
         run_serve(parser.parse_args(["serve", "--port", "0"]))
     with pytest.raises(ValueError, match="workers"):
         run_serve(parser.parse_args(["serve", "--workers", "0"]))
 
 
-def test_a_linear_algebra_failure_is_internal_not_the_users_input():
+def test_only_input_errors_and_refusals_are_the_users_fault():
+    from footmesh.errors import InputError, Refusal
     from footmesh.web.jobs import _classify
 
-    assert _classify(ValueError("no foot found in the photo"))[0] == "input"
+    assert _classify(Refusal("no foot found in the photo", "take it from above")) == (
+        "input",
+        "no foot found in the photo; take it from above",
+    )
+    assert _classify(InputError("depth map d.png is 8-bit"))[0] == "input"
+    # a bare ValueError from inside a stage is a broken contract of footmesh, not a fault of the photo
+    kind, message = _classify(ValueError("operands could not be broadcast together"))
+    assert kind == "crash" and "broadcast" in message
     kind, message = _classify(np.linalg.LinAlgError("SVD did not converge"))
     assert kind == "crash" and "LinAlgError" in message  # 500 and the server log, never a 422 blaming the photo

@@ -15,6 +15,7 @@ from footmesh.config import CuesNetConfig
 from footmesh.cues import Cues
 from footmesh.cues.inputs import network_input
 from footmesh.cues.weights import network_for
+from footmesh.geometry.camera import rescale_pixels
 
 
 def resize_inputs(
@@ -32,7 +33,7 @@ def resize_inputs(
 def joints_to_image(joints: np.ndarray, size: int, width: int, height: int) -> np.ndarray:
     """Network-input pixels (side ``size``) -> pixels of the ``width`` x ``height`` image it was resized from."""
     scale = np.array([width / size, height / size])
-    return ((joints + 0.5) * scale - 0.5).astype(np.float32)
+    return rescale_pixels(joints, scale).astype(np.float32)
 
 
 @torch.no_grad()

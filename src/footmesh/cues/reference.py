@@ -48,6 +48,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from footmesh.geometry.camera import rescale_pixels
+
 KINDS = ("marker", "a4", "card")
 """Object kinds in order of preference: a marker is unambiguous, a sheet is large, a card is small."""
 
@@ -566,7 +568,7 @@ def _candidate_groups(
     min_length, min_area = 20 / scale, _MIN_REGION_AREA_PX / scale**2
     for contours, sheet in outlines:
         big = [c for c in contours if len(c) >= min_length and cv2.contourArea(c) >= min_area]
-        big = [(c.astype(np.float32) + 0.5) * to_full - 0.5 for c in big]  # pixel centres, in px of the image
+        big = [rescale_pixels(c.astype(np.float32), to_full) for c in big]  # in px of the image
         groups = [(c, cv2.contourArea(c)) for c in big]
         if sheet and len(big) > 1:
             # a leg across a sheet under the foot cuts its white region in two or three: try them together

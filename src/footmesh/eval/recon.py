@@ -147,14 +147,14 @@ def network_inputs(
     """Synthetic samples resized to the network's side as in training: rgb (B, S, S, 3) uint8 and depth (B, S, S)
     mm (None where ``input_kind`` does not use them) and K (B, 3, 3) px of that side, for ``predict_batch``."""
     from footmesh.cues.predict import resize_inputs
-    from footmesh.recon.model import resize_intrinsics
+    from footmesh.geometry.camera import resize_intrinsics
 
     rgbs, depths, ks = [], [], []
     for s in samples:
         r, d = resize_inputs(s["rgb"], s["depth"].astype(np.float32), size)
         rgbs.append(r)
         depths.append(d)
-        ks.append(resize_intrinsics(s["K"], s["rgb"].shape[0], size))
+        ks.append(resize_intrinsics(s["K"], size / s["rgb"].shape[0]))
     rgb = np.stack(rgbs) if input_kind != "depth" else None
     depth = np.stack(depths) if input_kind != "rgb" else None
     return rgb, depth, np.stack(ks)

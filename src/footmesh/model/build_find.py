@@ -9,8 +9,8 @@ Steps (``build_from_find``):
    foot length L ~ N(271.2, 13.1) (men) / N(246.3, 12.4) (women), ball width
    W = 38.09 + 0.235 L (men) / 40.16 + 0.213 L (women) + N(0, 4.0). FIND's shapes are normalised (their length
    varies by ~8 mm over +-2 SD), so this adds the real variation of adult feet. Scale anisotropically about the
-   heel origin: x by s_x so that :func:`footmesh.measure.stick_length_mm` = L, y by s_y so that
-   :func:`footmesh.measure.ball_width_mm` = W, z by sqrt(s_x s_y) (heights follow the geometric mean of the
+   heel origin: x by s_x so that :func:`footmesh.model.anatomy.stick_length_mm` = L, y by s_y so that
+   :func:`footmesh.model.anatomy.ball_width_mm` = W, z by sqrt(s_x s_y) (heights follow the geometric mean of the
    two plan scales: taller with bigger feet, without inventing a height statistic that ANSUR does not give);
    iterated three times because the measurements' vertex selections depend slightly on the scales.
 4. PCA (:func:`footmesh.model.pca.fit_pca`), keeping enough components for ``variance`` of the variance and a
@@ -30,8 +30,8 @@ from pathlib import Path
 
 import numpy as np
 
-from footmesh.measure import ball_width_mm, stick_length_mm
 from footmesh.model import vertex_ids
+from footmesh.model.anatomy import ball_width_mm, stick_length_mm
 from footmesh.model.template import to_foot_frame
 
 log = logging.getLogger(__name__)

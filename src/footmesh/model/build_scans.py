@@ -32,8 +32,9 @@ from pathlib import Path
 
 import numpy as np
 
+from footmesh.geometry.alignment import umeyama
 from footmesh.model.assets import FootModelAsset
-from footmesh.model.register import RegistrationConfig, RegistrationResult, register, umeyama
+from footmesh.model.register import RegistrationConfig, RegistrationResult, register
 from footmesh.model.scans import (
     SCAN_SUFFIXES,
     check_markers_on_scan,

@@ -18,6 +18,8 @@ from dataclasses import dataclass
 import torch
 from torch.func import jacfwd, vmap
 
+from footmesh.geometry.alignment import weighted_procrustes
+from footmesh.geometry.rotations import skew
 from footmesh.model import ik, lbs
 from footmesh.model import skeleton as sk
 from footmesh.model.layer import FootModel, side_mask
@@ -92,42 +94,9 @@ class Canonical:
     residual_mm: torch.Tensor
 
 
-def weighted_procrustes(
-    source: torch.Tensor, target: torch.Tensor, weights: torch.Tensor
-) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-    """Similarity transform ``target ~ s R source + t`` by weighted least squares (Umeyama 1991).
-
-    Args:
-        source: (B, N, 3) or (N, 3). target: (B, N, 3). weights: (N,) non-negative, not all zero.
-    Returns:
-        rotation (B, 3, 3) proper, scale (B,), translation (B, 3).
-    """
-    if source.dim() == 2:
-        source = source.unsqueeze(0).expand_as(target)
-    w = (weights / weights.sum()).to(target).reshape(1, -1, 1)
-    mu_s, mu_t = (w * source).sum(1), (w * target).sum(1)  # (B, 3)
-    xs, xt = source - mu_s.unsqueeze(1), target - mu_t.unsqueeze(1)
-    cov = (w * xt).transpose(1, 2) @ xs  # (B, 3, 3) = sum_i w_i t_i s_i^T
-    u, sv, vh = torch.linalg.svd(cov)
-    sign = torch.sign(torch.linalg.det(u @ vh))
-    d = torch.stack([torch.ones_like(sign), torch.ones_like(sign), sign], dim=-1)  # (B, 3)
-    rotation = u @ torch.diag_embed(d) @ vh
-    scale = (sv * d).sum(-1) / (w * xs**2).sum((1, 2))
-    translation = mu_t - scale.unsqueeze(-1) * (rotation @ mu_s.unsqueeze(-1)).squeeze(-1)
-    return rotation, scale, translation
-
-
-def _skew(w: torch.Tensor) -> torch.Tensor:
-    """(..., 3) -> (..., 3, 3) cross-product matrix."""
-    z = torch.zeros_like(w[..., 0])
-    return torch.stack([z, -w[..., 2], w[..., 1], w[..., 2], z, -w[..., 0], -w[..., 1], w[..., 0], z], dim=-1).reshape(
-        *w.shape, 3
-    )
-
-
 def _exp_so3(w: torch.Tensor) -> torch.Tensor:
     """Rodrigues: (B, 3) axis-angle -> (B, 3, 3)."""
-    return torch.linalg.matrix_exp(_skew(w))
+    return torch.linalg.matrix_exp(skew(w))
 
 
 class _Problem:
@@ -150,7 +119,7 @@ class _Problem:
         The rotation is ``exp([w]x) rot0``, expanded to second order: exact in value and first derivative at
         ``w = 0``, where the Jacobian is taken (the update itself uses the exact exponential).
         """
-        k = _skew(params[_ROT])
+        k = skew(params[_ROT])
         rotation = (torch.eye(3, dtype=params.dtype) + k + 0.5 * k @ k) @ rot0
         shape = params[_SHAPE_START:]
         v_shaped = lbs.blend_shapes(shape.unsqueeze(0), self.mean, self.components, self.sd)  # (1, V, 3)
@@ -230,7 +199,7 @@ class _Problem:
             n = points.shape[1]
             rel = points - t
             eye = torch.eye(3, dtype=params.dtype, device=params.device).expand(b, n, 3, 3)
-            d_rot = -_skew(rel)  # (B, n, 3, 3)
+            d_rot = -skew(rel)  # (B, n, 3, 3)
             d_angle_world = s.unsqueeze(-1) * torch.einsum("brc,bndc->bnrd", rot0, d_angles)  # (B, n, 3, D)
             cols = torch.cat([d_rot, eye, rel.unsqueeze(-1), d_angle_world], dim=-1)  # (B, n, 3, 7 + D)
             return cols.reshape(b, 3 * n, -1)

@@ -36,6 +36,10 @@ import numpy as np
 import scipy.optimize
 import scipy.sparse as sp
 
+from footmesh.geometry.alignment import Similarity, umeyama
+from footmesh.geometry.mesh import face_normals, vertex_normals
+from footmesh.geometry.rotations import skew
+
 log = logging.getLogger(__name__)
 
 MIN_MARKERS_FOR_INIT = 3
@@ -159,21 +163,6 @@ class StageReport:
 
 
 @dataclass(frozen=True)
-class Similarity:
-    """``p_scan = scale * rotation @ p_template + translation`` (mm)."""
-
-    scale: float
-    rotation: np.ndarray
-    translation: np.ndarray
-
-    def apply(self, points: np.ndarray) -> np.ndarray:
-        return self.scale * points @ self.rotation.T + self.translation
-
-    def inverse_apply(self, points: np.ndarray) -> np.ndarray:
-        return (points - self.translation) @ self.rotation / self.scale
-
-
-@dataclass(frozen=True)
 class RegistrationResult:
     """Result of :func:`register`.
 
@@ -244,41 +233,6 @@ def smoothness_operator(faces: np.ndarray, num_vertices: int) -> sp.csr_matrix:
 
 
 # --- geometry helpers ---------------------------------------------------------------------------------------
-
-
-def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """Area-weighted unit vertex normals (V, 3) (faces counter-clockwise seen from outside)."""
-    tri = vertices[faces]
-    fn = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])  # (F, 3), length = 2 area
-    vn = np.zeros_like(vertices)
-    for k in range(3):
-        np.add.at(vn, faces[:, k], fn)
-    return vn / np.maximum(np.linalg.norm(vn, axis=1, keepdims=True), 1e-12)
-
-
-def face_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    tri = vertices[faces]
-    fn = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
-    return fn / np.maximum(np.linalg.norm(fn, axis=1, keepdims=True), 1e-12)
-
-
-def umeyama(source: np.ndarray, target: np.ndarray, weights: np.ndarray | None = None) -> Similarity:
-    """Least-squares similarity with ``target ~ s R source + t`` (Umeyama 1991), optional per-point weights."""
-    src = np.asarray(source, dtype=np.float64)
-    dst = np.asarray(target, dtype=np.float64)
-    w = np.ones(len(src)) if weights is None else np.asarray(weights, dtype=np.float64)
-    w = w / w.sum()
-    mu_s, mu_d = w @ src, w @ dst
-    xs, xd = src - mu_s, dst - mu_d
-    cov = (xd * w[:, None]).T @ xs  # (3, 3)
-    u, d, vt = np.linalg.svd(cov)
-    s_fix = np.eye(3)
-    if np.linalg.det(u) * np.linalg.det(vt) < 0:
-        s_fix[2, 2] = -1.0
-    rot = u @ s_fix @ vt
-    var_s = w @ (xs**2).sum(axis=1)
-    scale = float(np.trace(np.diag(d) @ s_fix) / var_s)
-    return Similarity(scale, rot, mu_d - scale * rot @ mu_s)
 
 
 def _area_moments(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -387,15 +341,6 @@ def _init_from_axes(
 # --- shape prior -------------------------------------------------------------------------------------------
 
 
-def _skew(w: np.ndarray) -> np.ndarray:
-    """(P, 3) -> (P, 3, 3) cross-product matrices: ``_skew(w)[i] @ u = w[i] x u``."""
-    z = np.zeros(len(w))
-    return np.stack(
-        [np.stack([z, -w[:, 2], w[:, 1]], 1), np.stack([w[:, 2], z, -w[:, 0]], 1), np.stack([-w[:, 1], w[:, 0], z], 1)],
-        axis=1,
-    )
-
-
 def _fit_shape_prior(
     template: np.ndarray,
     faces: np.ndarray,
@@ -484,7 +429,7 @@ def _fit_shape_prior(
             q = moved[ids] - sim.translation  # (P, 3) about the similarity's origin
             # d p = log-scale * q + omega x q + dt + rb dc  (first order in the similarity's increments)
             j_s = q[:, :, None]  # (P, 3, 1)
-            j_w = -_skew(q)  # omega x q = -[q]x omega
+            j_w = -skew(q)  # omega x q = -[q]x omega
             j_t = np.broadcast_to(np.eye(3), (len(ids), 3, 3))
             j_c = np.moveaxis(rb[:, ids], 0, 2)  # (P, 3, K)
             rows.append(w * np.concatenate([j_c, j_s, j_w, j_t], axis=2).reshape(-1, k + 7))

@@ -35,8 +35,8 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 from scipy.optimize import nnls
 
-from footmesh.measure import stick_length_mm
 from footmesh.model import skeleton as sk
+from footmesh.model.anatomy import stick_length_mm
 
 MTP_X_FRACTION = (0.725, 0.705, 0.68, 0.655, 0.63)
 MTP_HEIGHT_FRACTION = 0.4

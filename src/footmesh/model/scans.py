@@ -31,6 +31,8 @@ from pathlib import Path
 
 import numpy as np
 
+from footmesh.errors import InputError
+
 log = logging.getLogger(__name__)
 
 SCAN_SUFFIXES = (".obj", ".ply", ".stl", ".off")
@@ -63,7 +65,7 @@ MARKER_NAMES: dict[str, str] = {
 TEMPLATE_MARKERS_FILE = "template_markers.json"
 
 
-class ScanError(ValueError):
+class ScanError(InputError):
     """A scan or marker file that cannot be used; the message names the file and the fix."""
 
 

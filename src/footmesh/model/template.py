@@ -17,8 +17,9 @@ from pathlib import Path
 
 import numpy as np
 
-from footmesh.measure import FOOT_HEIGHT_FRACTION
+from footmesh.geometry.rotations import rotation_between
 from footmesh.model import vertex_ids
+from footmesh.model.anatomy import FOOT_HEIGHT_FRACTION
 
 FIND_TEMPLATE_NAME = "template.obj"
 FIND_NUM_VERTICES = 1002
@@ -72,20 +73,6 @@ def subdivided_template(find_dir: str | Path) -> tuple[np.ndarray, np.ndarray]:
     return np.ascontiguousarray(vertices, dtype=np.float64), np.ascontiguousarray(faces, dtype=np.int64)
 
 
-def _rotation_between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Rotation matrix (3, 3) turning unit vector ``a`` onto unit vector ``b`` (Rodrigues)."""
-    v = np.cross(a, b)
-    c = float(np.dot(a, b))
-    if c < -1.0 + 1e-12:  # opposite: turn by pi about any axis perpendicular to a
-        axis = np.cross(a, [1.0, 0.0, 0.0])
-        if np.linalg.norm(axis) < 1e-6:
-            axis = np.cross(a, [0.0, 1.0, 0.0])
-        axis /= np.linalg.norm(axis)
-        return 2.0 * np.outer(axis, axis) - np.eye(3)
-    vx = np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
-    return np.eye(3) + vx + vx @ vx / (1.0 + c)
-
-
 def support_plane(vertices: np.ndarray, down: np.ndarray) -> tuple[np.ndarray, float]:
     """The facet of the convex hull that a foot rests on when gravity pulls along ``down``.
 
@@ -131,7 +118,7 @@ def to_foot_frame(vertices: np.ndarray, landmarks: dict[str, int] | None = None)
        (FIND feet are rolled by about 13 degrees, so "lowest z = 0" would not stand them on the floor.)
     3. Yaw about z so that the foot axis, heel landmark -> 2nd toe tip projected on the floor, is +x.
     4. Origin: x = 0 at the rearmost point of the foot below the ankle (vertices with
-       ``z <= FOOT_HEIGHT_FRACTION * x-extent``, the same set :func:`footmesh.measure.stick_length_mm` uses),
+       ``z <= FOOT_HEIGHT_FRACTION * x-extent``, the same set :func:`footmesh.model.anatomy.stick_length_mm` uses),
        y = 0 at the heel landmark, z = 0 on the floor.
 
     Args:
@@ -156,7 +143,7 @@ def to_foot_frame(vertices: np.ndarray, landmarks: dict[str, int] | None = None)
     up /= np.linalg.norm(up)
 
     normal, offset = support_plane(v, -up)  # step 2
-    rot = _rotation_between(normal, np.array([0.0, 0.0, -1.0]))
+    rot = rotation_between(normal, np.array([0.0, 0.0, -1.0]))
     v = v @ rot.T
     v[:, 2] -= offset  # plane: n.p + offset = 0 with R n = -z  ->  z = offset; every vertex has z >= offset
 

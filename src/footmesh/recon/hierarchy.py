@@ -36,6 +36,8 @@ import numpy as np
 import torch
 from torch import nn
 
+from footmesh.geometry.mesh import vertex_normals
+
 FORMAT_VERSION = 1
 DEFAULT_LEVELS = 4
 """Levels below the full mesh: 4,002 -> ~2,000 -> ~1,000 -> ~500 -> ~250 vertices (thesis Figure 3.6's five
@@ -345,7 +347,7 @@ def ordered_one_rings(
     """
     v = np.asarray(vertices, dtype=np.float64)
     f = np.asarray(faces, dtype=np.int64)
-    normals = _vertex_normals(v, f)
+    normals = vertex_normals(v, f)
     axis = np.asarray(reference_axis, dtype=np.float64)
     axis = axis / np.linalg.norm(axis)
     fallback = np.asarray(FALLBACK_AXIS, dtype=np.float64)
@@ -482,15 +484,6 @@ def _angle_sorted(v: np.ndarray, a: int, neighbours: list[int], n: np.ndarray, r
     d = v[neighbours] - v[a]
     angle = np.mod(np.arctan2(d @ e2, d @ e1), 2 * np.pi)
     return [neighbours[i] for i in np.lexsort((neighbours, angle))]
-
-
-def _vertex_normals(v: np.ndarray, f: np.ndarray) -> np.ndarray:
-    """(V, 3) unit area-weighted vertex normals."""
-    face_n = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])  # length = 2 x area
-    normals = np.zeros_like(v)
-    for i in range(3):
-        np.add.at(normals, f[:, i], face_n)
-    return normals / np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-12)
 
 
 def _drop_unused(v: np.ndarray, f: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -25,7 +25,8 @@ from dataclasses import dataclass
 
 import numpy as np
 import torch
-import torch.nn.functional as F
+
+from footmesh.geometry.mesh import batch_vertex_normals
 
 EPS = 1e-12
 
@@ -99,21 +100,11 @@ def _edge_length_loss(pred: torch.Tensor, target: torch.Tensor, edges: torch.Ten
     return (edge_lengths(pred, edges) - edge_lengths(target, edges)).abs().mean()
 
 
-def vertex_normals(vertices: torch.Tensor, faces: torch.Tensor | np.ndarray) -> torch.Tensor:
-    """Unit area-weighted vertex normals (B, V, 3) of (B, V, 3) vertices on (F, 3) faces."""
-    f = _faces(faces, vertices.device)
-    v0, v1, v2 = vertices[:, f[:, 0]], vertices[:, f[:, 1]], vertices[:, f[:, 2]]
-    face_normals = torch.linalg.cross(v1 - v0, v2 - v0, dim=-1)  # (B, F, 3), length = 2 x area
-    normals = torch.zeros_like(vertices)
-    for i in range(3):
-        normals = normals.index_add(1, f[:, i], face_normals)
-    return F.normalize(normals, dim=-1, eps=EPS)
-
-
 def normal_loss(pred: torch.Tensor, target: torch.Tensor, faces: torch.Tensor | np.ndarray) -> torch.Tensor:
     """Mean ``1 - cos`` between predicted and target vertex normals, in [0, 2]: (B, V, 3) x 2, (F, 3) -> ()."""
     _check_pair(pred, target)
-    cos = (vertex_normals(pred, faces) * vertex_normals(target, faces)).sum(dim=-1)
+    f = _faces(faces, pred.device)
+    cos = (batch_vertex_normals(pred, f) * batch_vertex_normals(target, f)).sum(dim=-1)
     return (1.0 - cos).mean()
 
 

@@ -211,17 +211,6 @@ def recon_input(
     return torch.cat(parts, dim=1), ref
 
 
-def resize_intrinsics(K: np.ndarray | torch.Tensor, src: int, dst: int):
-    """Intrinsics (..., 3, 3) of a square ``src``-side image for its resize to ``dst`` x ``dst`` (pixel centres)."""
-    k = K.clone() if isinstance(K, torch.Tensor) else np.array(K, dtype=np.float64, copy=True)
-    r = dst / src
-    k[..., 0, 0] *= r
-    k[..., 1, 1] *= r
-    k[..., 0, 1] *= r
-    k[..., :2, 2] = (k[..., :2, 2] + 0.5) * r - 0.5
-    return k
-
-
 def frame_scale(input_kind: str, K: torch.Tensor, depth_ref_mm: torch.Tensor | None, size: int) -> torch.Tensor:
     """The scale ``s`` (B,) of the normalised frame (module docstring): median depth / 500 mm, or f_x / f_ref."""
     if input_kind in ("rgbd", "depth"):
@@ -329,7 +318,7 @@ class ReconNet(nn.Module):
 
         Args:
             x: (B, C, S, S) from ``recon_input`` (without the coordinate channels).
-            K: (B, 3, 3) intrinsics of the input images, px of the S x S input (``resize_intrinsics``).
+            K: (B, 3, 3) intrinsics of the input images, px of the S x S input (``geometry.camera``).
             depth_ref_mm: (B,) the depth maps' medians (``recon_input``); None for RGB.
         Returns:
             ``DecoderOutput`` (vertices (B, 4002, 3), centre, levels) or ``PointCloudOutput`` (points (B, N, 3),

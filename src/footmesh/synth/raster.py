@@ -18,7 +18,7 @@ import numpy as np
 from footmesh.synth import kernels
 from footmesh.synth.kernels import EDGE_TOLERANCE
 
-__all__ = ["EDGE_TOLERANCE", "Fragments", "project", "rasterize"]
+__all__ = ["EDGE_TOLERANCE", "Fragments", "rasterize"]
 
 
 @dataclass(frozen=True)
@@ -66,10 +66,3 @@ def rasterize(
     if len(faces):
         kernels.rasterize_into(xy, z, faces, bool(perspective), bool(cull_back), face, depth, bary)
     return Fragments(face, depth, bary)
-
-
-def project(points: np.ndarray, k: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Pinhole projection of camera-frame points (N, 3) mm -> pixels (N, 2) and depth z (N,) mm."""
-    z = points[:, 2]
-    uv = (points @ k.T)[:, :2] / z[:, None]
-    return uv, z

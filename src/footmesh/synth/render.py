@@ -27,6 +27,8 @@ import numpy as np
 import torch
 from scipy import ndimage, sparse
 
+from footmesh.geometry.camera import project
+from footmesh.geometry.mesh import face_normals, vertex_normals
 from footmesh.model.layer import FootModel
 from footmesh.model.skin import SkinColours, load_skin_colours
 from footmesh.synth import kernels, raster, textures
@@ -118,8 +120,7 @@ class Renderer:
         rows = np.repeat(np.arange(len(faces)), 3)
         # (V, F) vertex-face incidence: vertex normals = incidence @ face normals (area weighted)
         self._incidence = sparse.csr_matrix((np.ones(rows.size), (faces.reshape(-1), rows)), shape=(nv, len(faces)))
-        normals = self._incidence @ _face_normals(mean, faces)
-        normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+        normals = vertex_normals(mean, faces)
         self.cap = np.flatnonzero((mean[:, 2] > CAP_MIN_HEIGHT_MM) & (normals[:, 2] > CAP_NORMAL_Z))
         if len(self.cap) < 8:
             raise ValueError(f"foot model: found only {len(self.cap)} ankle-cap vertices to grow the leg from")
@@ -246,13 +247,13 @@ class Renderer:
         verts, faces, albedo = _merge(feet + legs)
         n_foot_faces = sum(len(m.faces) for m in feet)
         v_cam = verts @ rot.T + trans
-        xy, z = raster.project(v_cam, k_ss)
+        xy, z = project(v_cam, k_ss)
         frag = raster.rasterize(xy, z, faces, n_ss, n_ss)
 
         light = scene.light_dir
         normals = np.concatenate(
             [self._vertex_normals(m.vertices, m.faces) for m in feet]
-            + [_vertex_normals(m.vertices, m.faces) for m in legs]
+            + [vertex_normals(m.vertices, m.faces) for m in legs]
         )
         lambert = np.clip(normals @ light, 0.0, None)
         sky = 0.8 + 0.2 * normals[:, 2]  # hemispheric ambient: surfaces facing down get a little less light
@@ -282,7 +283,7 @@ class Renderer:
 
         v_foot_cam = geo.foot_vertices @ rot.T + trans
         j_cam = geo.foot_joints @ rot.T + trans
-        j2d, jz = raster.project(j_cam, k)
+        j2d, jz = project(j_cam, k)
         tol = kernels.nearest_distance(geo.foot_joints, geo.foot_vertices)
         j_vis = _visible(j2d, jz, silhouette, depth, tol + JOINT_VISIBILITY_MARGIN_MM)
 
@@ -292,7 +293,7 @@ class Renderer:
         ref_vis = np.zeros(4, dtype=bool)
         if scene.reference is not None:
             ref3d = scene.reference.corners() @ rot.T + trans
-            ref2d, rz = raster.project(ref3d, k)
+            ref2d, rz = project(ref3d, k)
             if eye[2] > 0:
                 ref_vis = _visible(ref2d, rz, depth > 0, depth, np.full(4, REFERENCE_VISIBILITY_TOLERANCE_MM))
 
@@ -322,7 +323,7 @@ class Renderer:
         }
 
     def _vertex_normals(self, verts: np.ndarray, faces: np.ndarray) -> np.ndarray:
-        n = self._incidence @ _face_normals(verts, faces)
+        n = self._incidence @ face_normals(verts, faces, unit=False)
         return n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
 
     def _floor(
@@ -455,20 +456,6 @@ def depth_noise(depth: np.ndarray, rng: np.random.Generator) -> np.ndarray:
     drop = (jump & (u < DEPTH_EDGE_DROPOUT)) | (u > 1.0 - DEPTH_RANDOM_DROPOUT)
     drop |= (z < DEPTH_RANGE_MM[0]) | (z > DEPTH_RANGE_MM[1])
     return np.where(drop, 0, np.clip(np.round(noisy), 0, 65535)).astype(np.uint16)
-
-
-def _face_normals(verts: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """(F, 3) area-weighted face normals (not normalised)."""
-    a, b, c = verts[faces[:, 0]], verts[faces[:, 1]], verts[faces[:, 2]]
-    return np.cross(b - a, c - a)
-
-
-def _vertex_normals(verts: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    fn = _face_normals(verts, faces)
-    n = np.zeros_like(verts)
-    for k in range(3):
-        np.add.at(n, faces[:, k], fn)
-    return n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
 
 
 def _tube(

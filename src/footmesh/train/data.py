@@ -18,6 +18,7 @@ import numpy as np
 import torch
 import torch.nn.functional as F  # noqa: N812
 
+from footmesh.geometry.camera import rescale_pixels
 from footmesh.report import atomic_path
 
 SAMPLE_KEYS = ("rgb", "depth", "silhouette", "joints2d", "joints_visible", "view_id", "side")
@@ -27,7 +28,7 @@ CACHE_KEYS = ("rgb", "depth", "silhouette", "joints2d", "joints_visible", "view_
 
 def resize_joints(joints: np.ndarray, src: int, dst: int) -> np.ndarray:
     """Pixel coordinates (centre of the top-left pixel at 0) of a ``src``-side image in a ``dst``-side resize."""
-    return (joints + 0.5) * (dst / src) - 0.5
+    return rescale_pixels(joints, dst / src)
 
 
 def resize_sample(sample: dict[str, np.ndarray], size: int) -> dict[str, np.ndarray]:

@@ -29,10 +29,11 @@ import torch.nn.functional as F  # noqa: N812
 from torch import nn
 
 from footmesh.config import TrainConfig
+from footmesh.geometry.camera import resize_intrinsics
 from footmesh.recon.edgeconv import PointCloudOutput, chamfer_distance
 from footmesh.recon.joints import joints_from_vertices, midfoot_aligned_error
 from footmesh.recon.losses import LossWeights, mesh_loss
-from footmesh.recon.model import ReconConfig, ReconNet, recon_input, resize_intrinsics, update_config
+from footmesh.recon.model import ReconConfig, ReconNet, recon_input, update_config
 from footmesh.report import atomic_path
 from footmesh.train.data import _depth_noise, _photometric, load_arrays
 from footmesh.train.loop import CHECKPOINT, TrainResult, run_training
@@ -182,7 +183,7 @@ def _build_target_cache(dataset, cache: Path, size: int, stamp: dict, progress: 
         s = dataset[i]
         out["vertices"][i] = s["vertices"]
         out["joints3d"][i] = s["joints3d"]
-        out["K"][i] = resize_intrinsics(s["K"], _source_size(dataset, s["K"]), size)
+        out["K"][i] = resize_intrinsics(s["K"], size / _source_size(dataset, s["K"]))
     for k, v in out.items():
         with atomic_path(cache / f"{k}.npy") as tmp, open(tmp, "wb") as f:
             np.save(f, v)

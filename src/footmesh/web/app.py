@@ -35,8 +35,10 @@ from starlette.concurrency import run_in_threadpool
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from footmesh import __version__
+from footmesh.formats import accepted
 from footmesh.measure import MEASUREMENT_NAMES
 from footmesh.model.skeleton import JOINT_NAMES, PARENTS
+from footmesh.result import json_schema
 from footmesh.web import uploads
 from footmesh.web.jobs import Job, JobError, JobRunner, MeasureFn, default_measure
 from footmesh.web.settings import WebSettings
@@ -168,7 +170,7 @@ def create_app(measure: MeasureFn | None = None, settings: WebSettings | None = 
         summary="Measure a foot from one photo",
         response_description="the result JSON (as `footmesh measure --json`); header `X-Result-Id`",
         responses={
-            200: {"content": {"application/json": {}}},
+            200: {"content": {"application/json": {"schema": json_schema()}}},
             413: {"description": "request, photo or depth map too large"},
             415: {"description": "not an accepted image type (checked by content)"},
             422: {"description": "the pipeline refused the input (no foot, depth of the wrong size, ...)"},
@@ -178,9 +180,9 @@ def create_app(measure: MeasureFn | None = None, settings: WebSettings | None = 
     )
     async def measure_endpoint(
         request: Request,
-        photo: Annotated[UploadFile, File(description="the photo: JPEG, HEIC, PNG, WebP or TIFF")],
-        depth: Annotated[UploadFile | None, File(description="optional depth map: 16-bit PNG (mm), .npy, .exr")] = None,
-        depth_unit: Annotated[Literal["mm", "m"], Form(description="unit of a .npy/.exr depth map")] = "mm",
+        photo: Annotated[UploadFile, File(description=f"the photo: {accepted.PHOTO_HELP}")],
+        depth: Annotated[UploadFile | None, File(description=f"optional depth map: {accepted.DEPTH_HELP}")] = None,
+        depth_unit: Annotated[Literal["mm", "m"], Form(description="unit of a float .npy depth map")] = "mm",
         intrinsics: Annotated[UploadFile | None, File(description="optional camera intrinsics (JSON)")] = None,
         side: Annotated[Literal["auto", "left", "right"], Form(description="which foot")] = "auto",
     ) -> Response:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 
+from footmesh.errors import InputError
 from footmesh.web.settings import LOCAL_HOSTS, WebSettings
 
 ANY_ADDRESS = ("0.0.0.0", "::", "")
@@ -37,29 +38,30 @@ def add_serve_command(sub: argparse._SubParsersAction) -> None:
 
 
 def settings_from_args(args: argparse.Namespace) -> WebSettings:
-    """``WebSettings`` from the ``serve`` arguments (ValueError for impossible limits)."""
+    """``WebSettings`` from the ``serve`` arguments (``InputError`` for impossible limits)."""
     named = [] if args.host in ANY_ADDRESS or args.host in LOCAL_HOSTS else [args.host]
-    return WebSettings(
-        allowed_hosts=LOCAL_HOSTS + tuple(named) + tuple(args.allowed_host),
-        workers=args.workers,
-        queue=args.queue,
-        time_limit_s=args.time_limit,
-        max_upload_bytes=int(args.max_upload_mb * 2**20),
-        max_pixels=int(args.max_megapixels * 1e6),
-    )
+    try:
+        return WebSettings(
+            allowed_hosts=LOCAL_HOSTS + tuple(named) + tuple(args.allowed_host),
+            workers=args.workers,
+            queue=args.queue,
+            time_limit_s=args.time_limit,
+            max_upload_bytes=int(args.max_upload_mb * 2**20),
+            max_pixels=int(args.max_megapixels * 1e6),
+        )
+    except ValueError as exc:  # WebSettings validates its limits: here they are the user's flags
+        raise InputError(str(exc)) from None
 
 
 def run_serve(args: argparse.Namespace) -> int:
     """Run the server until interrupted; a missing "web" extra is a one-line error."""
-    from footmesh.cli import UserError
-
     if not 0 < args.port < 65536:
-        raise UserError(f"--port must be 1..65535, got {args.port}")
+        raise InputError(f"--port must be 1..65535, got {args.port}")
     settings = settings_from_args(args)
     try:
         from footmesh.web.server import serve
     except ImportError as exc:
         hint = f"footmesh serve needs the web extra: pip install 'footmesh[web]' (missing {exc.name})"
-        raise UserError(hint) from None
+        raise InputError(hint) from None
     serve(args.host, args.port, settings)
     return 0

@@ -25,6 +25,7 @@ from multiprocessing.connection import Connection
 from pathlib import Path
 from typing import Any
 
+from footmesh.errors import is_users_fault
 from footmesh.web.settings import WebSettings
 from footmesh.web.store import ResultStore
 
@@ -121,11 +122,9 @@ def _call(measure: MeasureFn, job: Job) -> dict:
 
 def _classify(exc: BaseException) -> tuple[str, str]:
     """("input" | "missing" | "crash", message) for an exception raised by the measure function."""
-    from footmesh.cli import UserError, is_internal
-
     if isinstance(exc, PipelineMissing):
         return "missing", str(exc)
-    if isinstance(exc, UserError | ValueError) and not is_internal(exc):
+    if is_users_fault(exc):
         return "input", str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
     return "crash", "".join(traceback.format_exception(exc))
 

@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import json
 import shutil
-import struct
 from dataclasses import dataclass
 from pathlib import Path
 from typing import BinaryIO
@@ -18,32 +17,25 @@ from typing import BinaryIO
 import numpy as np
 from PIL import Image, UnidentifiedImageError
 
-from footmesh.formats import heif
+from footmesh.formats import accepted, heif
+from footmesh.formats.accepted import FileFormat
 
-PHOTO_FORMATS: dict[str, str] = {"JPEG": ".jpg", "PNG": ".png", "WEBP": ".webp", "TIFF": ".tiff", "HEIF": ".heic"}
-"""Accepted photo formats (Pillow's names) -> the suffix the saved file gets."""
-DEPTH_IMAGE_FORMATS: dict[str, str] = {"PNG": ".png", "TIFF": ".tiff"}
-"""Depth maps as images (16-bit PNG in mm, or TIFF); ``.npy`` and OpenEXR are recognised separately."""
-NPY_MAGIC = b"\x93NUMPY"
+PHOTO_FORMATS: dict[str, str] = {name: f.suffix for f in accepted.PHOTO_FORMATS for name in f.image_formats}
+"""Accepted photo formats (Pillow's names, ``formats.accepted``) -> the suffix the saved file gets."""
+DEPTH_IMAGE_FORMATS: dict[str, str] = {name: f.suffix for f in accepted.DEPTH_IMAGE_FORMATS for name in f.image_formats}
+"""Depth maps as images (16-bit PNG in mm, or TIFF); ``.npy`` is recognised separately."""
+NPY_MAGIC = accepted.NPY.signatures[0][1]
 EXR_MAGIC = b"\x76\x2f\x31\x01"
 COPY_CHUNK = 1 << 20
-
-# Signatures of the accepted image formats: a file that starts like one but does not open is corrupt (400),
-# not of the wrong type (415).
-_IMAGE_MAGIC: dict[str, tuple[bytes, ...]] = {
-    "JPEG": (b"\xff\xd8\xff",),
-    "PNG": (b"\x89PNG\r\n\x1a\n",),
-    "WEBP": (b"RIFF",),
-    "TIFF": (b"II*\x00", b"MM\x00*"),
-}
-PHOTO_KINDS = "a JPEG, PNG, WebP, TIFF or HEIC image"
+PHOTO_KINDS = accepted.listed(accepted.PHOTO_FORMATS, "image")
+DEPTH_KINDS = accepted.DEPTH_HELP
 
 # What a rejected file looks like, to say so in the message (first bytes -> description).
 _SIGNATURES: tuple[tuple[int, bytes, str], ...] = (
     (0, b"%PDF", "a PDF document"),
     (0, b"PK\x03\x04", "a ZIP archive or an office document"),
     (0, b"GIF8", "a GIF image"),
-    (0, b"BM", "a BMP image"),
+    (0, EXR_MAGIC, "an OpenEXR image (not read: save the depth with numpy.save, as .npy)"),
     (4, b"ftypheic", "a HEIC photo"),
     (4, b"ftypheix", "a HEIC photo"),
     (4, b"ftypmif1", "a HEIF photo"),
@@ -113,12 +105,13 @@ def check_photo(path: Path, max_pixels: int) -> CheckedFile:
     # always: PIL tries every format named, HEIF too when a corrupt JPEG fails, and an unregistered one raises
     # KeyError (a corrupt JPEG got 500 from a server that had not read a HEIC yet)
     heif.register()
-    kind, width, height = _check_image(path, PHOTO_FORMATS, max_pixels, "photo", PHOTO_KINDS)
+    kind, width, height = _check_image(path, accepted.PHOTO_FORMATS, max_pixels, "photo", PHOTO_KINDS)
     return CheckedFile(_rename(path, PHOTO_FORMATS[kind]), kind, width, height)
 
 
 def check_depth(path: Path, max_pixels: int) -> CheckedFile:
-    """Accept a depth map: 16-bit PNG or TIFF, ``.npy`` (2D numbers) or OpenEXR, of at most ``max_pixels``.
+    """Accept a depth map: 16-bit PNG or TIFF, or ``.npy`` (2D numbers), of at most ``max_pixels``
+    (``formats.accepted.DEPTH_FORMATS``, what the loader reads).
 
     Units are not checked here (the pipeline does, with the declared unit). Raises ``UploadError``.
     """
@@ -127,12 +120,7 @@ def check_depth(path: Path, max_pixels: int) -> CheckedFile:
         height, width = _npy_size(path)
         _check_pixels(width, height, max_pixels, "depth map")
         return CheckedFile(_rename(path, ".npy"), "NPY", width, height)
-    if head.startswith(EXR_MAGIC):
-        width, height = _exr_size(path)
-        _check_pixels(width, height, max_pixels, "depth map")
-        return CheckedFile(_rename(path, ".exr"), "EXR", width, height)
-    accepted = "a 16-bit PNG, TIFF, .npy or OpenEXR depth map"
-    kind, width, height = _check_image(path, DEPTH_IMAGE_FORMATS, max_pixels, "depth map", accepted)
+    kind, width, height = _check_image(path, accepted.DEPTH_IMAGE_FORMATS, max_pixels, "depth map", DEPTH_KINDS)
     return CheckedFile(_rename(path, DEPTH_IMAGE_FORMATS[kind]), kind, width, height)
 
 
@@ -168,18 +156,19 @@ def check_intrinsics(path: Path) -> CheckedFile:
 
 
 def _check_image(
-    path: Path, formats: dict[str, str], max_pixels: int, what: str, accepted: str
+    path: Path, formats: tuple[FileFormat, ...], max_pixels: int, what: str, kinds: str
 ) -> tuple[str, int, int]:
+    names = accepted.pillow_names(formats)
     try:
-        img = Image.open(path, formats=list(formats))
+        img = Image.open(path, formats=list(names))
     except UnidentifiedImageError:
+        # a file that starts like an accepted format but does not open is corrupt (400), not foreign (415)
         head = _head(path)
-        started = [k for k in formats if any(head.startswith(m) for m in _IMAGE_MAGIC.get(k, ()))]
-        started += ["HEIF"] if "HEIF" in formats and heif.is_heif(head) else []
-        if started and (started != ["WEBP"] or head[8:12] == b"WEBP"):
-            message = f"the {what} starts like a {started[0]} file but could not be read (corrupt?)"
+        started = accepted.started_like(head, formats)
+        if started is not None:
+            message = f"the {what} starts like a {started.name} file but could not be read (corrupt?)"
             raise UploadError(400, message) from None
-        raise UploadError(415, f"the {what} must be {accepted}; this file looks like {describe(head)}") from None
+        raise UploadError(415, f"the {what} must be {kinds}; this file looks like {describe(head)}") from None
     except Image.DecompressionBombError:
         limit = 2 * Image.MAX_IMAGE_PIXELS / 1e6
         raise UploadError(413, f"the {what} has more than {limit:.4g} MP; downscale it") from None
@@ -194,8 +183,8 @@ def _check_image(
             img.load()  # decode everything now: a truncated file fails here, not in the pipeline
         except (OSError, SyntaxError, ValueError, EOFError) as exc:
             raise UploadError(400, f"the {what} could not be decoded (corrupt or truncated file?): {exc}") from None
-    if kind not in formats:  # Pillow's formats= filter makes this impossible; kept as a guard
-        raise UploadError(415, f"the {what} must be {accepted}, got {kind}")
+    if accepted.format_of(kind, formats) is None:  # Pillow's formats= filter makes this impossible; kept as a guard
+        raise UploadError(415, f"the {what} must be {kinds}, got {kind}")
     return kind, width, height
 
 
@@ -231,27 +220,6 @@ def _npy_size(path: Path) -> tuple[int, int]:
     if height * width > 0 and path.stat().st_size < data_start + height * width * dtype.itemsize:
         raise UploadError(400, f"the depth map .npy file is truncated (header says {shape} {dtype})")
     return height, width
-
-
-def _exr_size(path: Path) -> tuple[int, int]:
-    """(width, height) of an OpenEXR file from the ``dataWindow`` attribute of its header."""
-    with open(path, "rb") as fh:
-        data = fh.read(65536)  # the header of a scanline image is far smaller
-    pos = 8  # magic (4) + version and flags (4)
-    try:
-        while pos < len(data) and data[pos] != 0:
-            name_end = data.index(b"\0", pos)
-            type_end = data.index(b"\0", name_end + 1)
-            name = data[pos:name_end]
-            (size,) = struct.unpack_from("<i", data, type_end + 1)
-            value_at = type_end + 5
-            if name == b"dataWindow":
-                x0, y0, x1, y1 = struct.unpack_from("<4i", data, value_at)
-                return x1 - x0 + 1, y1 - y0 + 1
-            pos = value_at + size
-    except (ValueError, struct.error):
-        pass
-    raise UploadError(400, "the depth map is not a readable OpenEXR file (no dataWindow in its header)")
 
 
 def _head(path: Path, n: int = 64) -> bytes:

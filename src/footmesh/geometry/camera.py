@@ -1,0 +1,46 @@
+"""Pinhole cameras in pixels: the centre of the top-left pixel is (0, 0), an image spans -0.5 .. W - 0.5.
+
+``K`` is the (..., 3, 3) intrinsic matrix ``[[fx, s, cx], [0, fy, cy], [0, 0, 1]]`` of an image, as a NumPy array
+or a torch tensor; each function returns the same kind it is given.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+
+def rescale_pixels(points_px: Any, factor: Any) -> Any:
+    """Pixel coordinates (..., 2) of an image after resizing it by ``factor`` (a number, or (sx, sy)):
+    ``p' + 0.5 = (p + 0.5) * factor``, as the image's extent scales, not its first pixel's centre."""
+    return (points_px + 0.5) * factor - 0.5
+
+
+def resize_intrinsics(K: Any, sx: float, sy: float | None = None) -> Any:  # noqa: N803
+    """Intrinsics of an image resized by ``sx`` horizontally and ``sy`` (default ``sx``) vertically."""
+    sy = sx if sy is None else sy
+    k = K.clone() if hasattr(K, "clone") else np.array(K, dtype=np.float64, copy=True)
+    k[..., 0, 0] *= sx
+    k[..., 0, 1] *= sx
+    k[..., 1, 1] *= sy
+    k[..., 0, 2] = rescale_pixels(k[..., 0, 2], sx)
+    k[..., 1, 2] = rescale_pixels(k[..., 1, 2], sy)
+    return k
+
+
+def crop_intrinsics(K: Any, x0: float, y0: float) -> Any:  # noqa: N803
+    """Intrinsics of the crop whose top-left pixel is ``(x0, y0)``: the same camera, its principal point moved."""
+    k = K.clone() if hasattr(K, "clone") else np.array(K, dtype=np.float64, copy=True)
+    k[..., 0, 2] -= x0
+    k[..., 1, 2] -= y0
+    return k
+
+
+def project(points: Any, K: Any, min_depth: float | None = None) -> tuple[Any, Any]:  # noqa: N803
+    """Camera-frame points (..., N, 3) mm -> pixels (..., N, 2) and depths z (..., N) mm, for K (3, 3) or
+    (..., 3, 3); ``min_depth``: divide by at least this (points behind the camera stay finite)."""
+    h = points @ K.swapaxes(-1, -2)
+    z = h[..., 2]
+    divisor = z if min_depth is None else z.clip(min_depth, None)
+    return h[..., :2] / divisor[..., None], z
