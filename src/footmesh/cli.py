@@ -6,7 +6,7 @@ import argparse
 import logging
 import sys
 
-from footmesh import __version__
+from footmesh import __version__, references
 from footmesh.errors import InputError, is_users_fault, write_internal_report
 
 log = logging.getLogger("footmesh")
@@ -247,7 +247,7 @@ def _add_synth_command(sub: argparse._SubParsersAction) -> None:
     synth.add_argument("--shard-index", type=int, default=0, help="this shard's index I in 0..K-1 (default 0)")
     synth.add_argument("--views", choices=("random", "thesis"), default="random", help="camera views")
     synth.add_argument(
-        "--reference", choices=("none", "a4", "card", "marker", "mixed"), default="mixed", help="reference object"
+        "--reference", choices=("none", *references.NAMES, "mixed"), default="mixed", help="reference object"
     )
     synth.add_argument(
         "--other-foot", type=float, default=0.0, metavar="P", help="share of samples with the other foot in view"

@@ -11,6 +11,8 @@ import os
 from dataclasses import asdict, dataclass, field, fields, replace
 from typing import Any
 
+from footmesh import references
+
 INPUT_CHANNELS = {"rgb": 3, "rgbd": 4, "depth": 1}
 """Channels of each input kind of the 2D-cues network."""
 CUES_ENCODERS = ("scratch", "efficientnet_lite0")
@@ -318,7 +320,7 @@ class MeasureConfig:
     outside the foot's silhouette (``FootFit.quality``): the fit went wrong and its millimetres would be too. Good
     fits on the synthetic eval: 0.01-0.08; the gross failures (50-140 mm off): 0.5-0.9."""
     uncertainty_factor: dict[str, float] = field(
-        default_factory=lambda: {"depth": 0.91, "a4": 1.39, "card": 1.39, "marker": 1.39}
+        default_factory=lambda: {"depth": 0.91, **{kind: 1.39 for kind in references.NAMES}}
     )
     """Calibration of the fit's covariance-based SD per scale source: the old factor times the 68th percentile of
     |error| / uncertainty over length and ball width on ``footmesh eval measure --views guided --seed 777 --n 60``

@@ -21,7 +21,7 @@ import cv2
 import numpy as np
 import torch
 
-from footmesh import __version__, refusals, report, viz
+from footmesh import __version__, references, refusals, report, viz
 from footmesh.config import MeasureConfig
 from footmesh.cues import Cues
 from footmesh.cues.predict import average_cues, predict_cues
@@ -535,7 +535,7 @@ def _measure_located(
         sizes = shoe_sizes(None)
         messages.append(
             "unscaled: no depth map and no reference object found, so millimetres and shoe sizes are not given; "
-            "put an A4 sheet, a bank card or the printed marker on the floor beside the foot, or use a depth photo"
+            f"put {references.described_choices()} on the floor beside the foot, or use a depth photo"
         )
     timings["measure_s"] = time.perf_counter() - t
 

@@ -15,6 +15,7 @@ from typing import TYPE_CHECKING
 import cv2
 import numpy as np
 
+from footmesh import references
 from footmesh.config import MeasureConfig
 from footmesh.errors import Refusal
 
@@ -29,7 +30,6 @@ LENGTH_TIPS = (3, 6, 9, 12, 15)
 HEEL = 17
 LENGTH_ENDS = (3, 6, 17)
 """Big toe tip, second toe tip, heel: the ends of the foot's length."""
-REFERENCE_NAMES = {"a4": "an A4 sheet", "card": "a bank card", "marker": "the printed marker"}
 
 
 def no_foot(largest_region_px: float, photo_px: float, config: MeasureConfig) -> Refusal | None:
@@ -98,7 +98,7 @@ def contradicted_reference(
         why = f"implies a floor no fitted foot stands on ({outside:.0f} % of it fell outside the foot)"
     else:
         return None
-    return f"the rectangle taken for {REFERENCE_NAMES[kind]} {why}, so it was ignored"
+    return f"the rectangle taken for {references.kind(kind).described} {why}, so it was ignored"
 
 
 def heel_hidden(end_on: float, floor_end_on_bound: float, reference_kind: str, config: MeasureConfig) -> Refusal | None:
@@ -108,8 +108,9 @@ def heel_hidden(end_on: float, floor_end_on_bound: float, reference_kind: str, c
     floor was tried: it then makes the foot up, 30+ mm short on real photos.)"""
     if end_on <= config.max_rgb_end_on or floor_end_on_bound > config.max_rgb_end_on:
         return None
+    named = references.kind(reference_kind).described
     return Refusal(
-        f"the foot could not be fitted lying on the floor that {REFERENCE_NAMES[reference_kind]} in the photo "
+        f"the foot could not be fitted lying on the floor that {named} in the photo "
         f"shows (the fit points it {_degrees(end_on):.0f} deg from the line of sight; on that floor it lies at "
         f"least {_degrees(floor_end_on_bound):.0f} deg from it): the heel is probably hidden behind the leg",
         "photograph the foot from the side and above, with the heel in view",

@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from footmesh import references
 from footmesh.synth import kernels, raster, textures
 from footmesh.synth.textures import _TABLE, FloorParams
 
@@ -150,16 +151,17 @@ def test_floor_textures_match_the_numpy_ones():
 def _numpy_reference(kind, u, v, tint, salt):
     """The former numpy ``textures.reference_colour``."""
     w, h = textures.reference_size(kind)
-    margin = textures.MARKER_MARGIN_MM if kind == "marker" else 0.0
+    margin = references.kind(kind).margin_mm
     inside = (u >= -margin) & (u <= w + margin) & (v >= -margin) & (v <= h + margin)
     paper = np.asarray(tint)[None] * (0.97 + 0.03 * _numpy_noise(u, v, 3.0, salt))[:, None]
     if kind == "a4":
         return inside, paper
     if kind == "marker":
-        cell = textures.MARKER_MM / 6
+        marker_mm = references.kind("marker").size_mm[0]
+        cell = marker_mm / 6
         iu = np.clip(np.floor(u / cell), 0, 5).astype(np.int64)
         iv = np.clip(np.floor(v / cell), 0, 5).astype(np.int64)
-        in_marker = (u >= 0) & (u < textures.MARKER_MM) & (v >= 0) & (v < textures.MARKER_MM)
+        in_marker = (u >= 0) & (u < marker_mm) & (v >= 0) & (v < marker_mm)
         return inside, np.where((in_marker & ~textures.ARUCO_BITS[iv, iu])[:, None], 0.06, paper)
     r = textures.CARD_CORNER_MM
     cu, cv = np.clip(u, r, w - r), np.clip(v, r, h - r)

@@ -48,25 +48,23 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from footmesh import references
 from footmesh.geometry.camera import rescale_pixels
 
-KINDS = ("marker", "a4", "card")
-"""Object kinds in order of preference: a marker is unambiguous, a sheet is large, a card is small."""
+KINDS = references.BY_PREFERENCE
+"""Object kinds in order of preference (``footmesh.references``): a marker is unambiguous, a sheet is large, a
+card is small."""
 
-SIZES_MM: dict[str, tuple[float, float]] = {
-    "a4": (297.0, 210.0),  # ISO 216
-    "card": (85.60, 53.98),  # ISO/IEC 7810 ID-1
-    "marker": (100.0, 100.0),  # the printed black square of the marker
-}
+SIZES_MM: dict[str, tuple[float, float]] = {k.name: k.size_mm for k in references.KINDS}
 """Length x width (mm) of the rectangle whose corners are returned."""
 
-SIZE_REL_SD: dict[str, float] = {
-    "a4": 2.0 / 297.0 / math.sqrt(3.0),
-    "card": 0.125 / 85.60 / math.sqrt(3.0),
-    "marker": 0.005 / math.sqrt(3.0),
-}
-"""Relative SD of the object's true size, uniform within its tolerance: A4 +-2 mm (ISO 216), card +-0.125 mm
-(ISO/IEC 7810: 85.47-85.72 mm), marker print scale +-0.5 % (a printer at "100 %", checked with a ruler)."""
+SIZE_REL_SD: dict[str, float] = {k.name: k.size_rel_sd for k in references.KINDS}
+"""Relative SD of the object's true size, uniform within its tolerance (``ReferenceKind.size_tolerance_mm``)."""
+SHEETS = references.with_detector("sheet")
+"""The kinds found as sheets of paper (bright, may bow, may lie under the foot and be completed)."""
+RECTANGLES = references.with_detector("sheet") + references.with_detector("card")
+MARKERS = references.with_detector("marker")
+"""The kinds named by their side ratio (markers are named by their pattern)."""
 
 ARUCO_DICTIONARY = cv2.aruco.DICT_4X4_50
 ARUCO_ID = 0
@@ -112,7 +110,8 @@ MIN_MEAN_SUPPORT = 0.6
 """Each side must show its edge at this fraction (the four sides together: the second) of the positions along it
 that show either the edge or plainly no edge; where the foot or its shadow covers the side nothing is known and
 nothing counts (``_side_edge_points``)."""
-MIN_COVERAGE: dict[str, tuple[float, float]] = {"a4": (0.1, 0.4), "card": (0.6, 0.8), "marker": (0.3, 0.6)}
+MIN_COVERAGE: dict[str, tuple[float, float]] = {k.name: k.min_coverage for k in references.KINDS}
+_LOOSEST_COVERAGE = tuple(min(c[i] for c in MIN_COVERAGE.values()) for i in (0, 1))
 """Each side must show its edge along the first fraction of its sampled length at least, and the four sides
 together along the second: a sheet may lie under the foot, a card lies beside it; a marker is proven by its
 decoded pattern, so the foot's shadow may cover more of its sides (the lines' fit still bounds the scale's SD).
@@ -201,7 +200,7 @@ _COMBINATIONS = {n: np.array(list(itertools.combinations(range(n), 4))) for n in
 class ReferenceObject:
     """A reference object found on the floor, and the floor plane it gives.
 
-    ``kind``: ``"a4"``, ``"card"`` or ``"marker"``; ``corners_px``: (4, 2) float64 px of the rectangle's corners in
+    ``kind``: a ``references.NAMES`` entry; ``corners_px``: (4, 2) float64 px of the rectangle's corners in
     the order local (0, 0), (L, 0), (L, W), (0, W) (marker: its black square, the first corner at the bottom left
     of the pattern read upright; sheet and card: of the two possible starts, the one nearer the camera);
     ``size_mm``: (L, W); ``cam_from_floor``: (4, 4) floor frame (mm, origin at corner 0, x along L, z up out of
@@ -310,17 +309,17 @@ def search_reference(
         # edges right next to the masked object are its own outline, not the reference's
         valid = cv2.dilate(exclude_mask.astype(np.uint8), _KERNEL5) == 0
     blurred = cv2.GaussianBlur(image, (0, 0), BLUR_SIGMA_PX)
-    found, markers = _detect_marker(image, blurred, K, valid, report="marker" in kinds)
+    found, markers = _detect_marker(image, blurred, K, valid, report=bool(references.with_detector("marker", kinds)))
     if found is not None:
         return ReferenceSearch(found)
-    wanted = [k for k in ("a4", "card") if k in kinds]
+    wanted = [k for k in RECTANGLES if k in kinds]
     if not wanted:
         return ReferenceSearch(None)
     # a marker's cells are rectangles too: nothing is taken from the printed sheet of any marker seen
     sheets = [(q - q.mean(axis=0)) * MARKER_SHEET_SCALE + q.mean(axis=0) for q in markers]
     seen: set[tuple[int, ...]] = set()  # rough quads already listed (both searches)
-    sheet_groups = _candidate_groups(blurred, K, wanted, "sheet", seen) if "a4" in wanted else []
-    card_groups = _candidate_groups(blurred, K, wanted, "card", seen) if "card" in wanted else []
+    sheet_groups = _candidate_groups(blurred, K, wanted, "sheet", seen) if set(wanted) & set(SHEETS) else []
+    card_groups = _candidate_groups(blurred, K, wanted, "card", seen) if set(wanted) - set(SHEETS) else []
     searched = _try_groups(sheet_groups, card_groups, sheets, wanted, blurred, K, valid)
     if searched.found is not None:
         return searched
@@ -370,7 +369,7 @@ def _try_groups(
                 continue
             if masked is not None and not _paper_beside(result[1].corners_px, masked, blurred):
                 continue
-            if masked is not None and result[1].kind == "a4":
+            if masked is not None and result[1].kind in SHEETS:
                 lines = _fit_sides(result[1].corners_px, blurred, None, 1.5)
                 if lines is not None and all(ln is not None for ln in lines):
                     if not _blank_inside(result[1].corners_px, lines, ~masked, blurred):
@@ -382,16 +381,21 @@ def _try_groups(
 
     # a sheet wins over any card: once one is found, the candidates left (most of the time spent on those that
     # are none) are not tried. Sheets with a hidden corner completed come last, only when no card was found.
+    def best_of(names: list[str]) -> ReferenceObject | None:
+        found = [best[k] for k in names if k in best]
+        return max(found, key=lambda scored: scored[0])[1] if found else None
+
+    cards = [k for k in RECTANGLES if k not in SHEETS]
     for group in sheet_groups[:1] + card_groups:
         try_candidates(group)
-        if "a4" in best:
-            return ReferenceSearch(best["a4"][1])
-    if "card" in best:
-        return ReferenceSearch(best["card"][1])
+        if (sheet := best_of(SHEETS)) is not None:
+            return ReferenceSearch(sheet)
+    if (card := best_of(cards)) is not None:
+        return ReferenceSearch(card)
     for group in sheet_groups[1:]:
         try_candidates(group, completed=True)
-        if "a4" in best:
-            return ReferenceSearch(best["a4"][1])
+        if (sheet := best_of(SHEETS)) is not None:
+            return ReferenceSearch(sheet)
     if not largest_rejected:
         return ReferenceSearch(None)
     area, why = largest_rejected[0]
@@ -497,7 +501,7 @@ def _detect_marker(
             cell = float(np.mean(np.linalg.norm(np.roll(ordered, -1, axis=0) - ordered, axis=1))) / MARKER_CELLS
             wider = [r * cell for r in MARKER_RETRY_RADII_CELLS if r * cell > FIRST_RADIUS_PX]
             for radius in (FIRST_RADIUS_PX, *wider):
-                found = _finish(ordered, ["marker"], blurred, K, valid, mirrored=mirrored, first_radius=radius)
+                found = _finish(ordered, MARKERS, blurred, K, valid, mirrored=mirrored, first_radius=radius)
                 if found is not None:
                     return found[1], seen
     return None, seen
@@ -592,7 +596,7 @@ def _candidate_groups(
     rough, source = _canonical_many(rough[keep]), source[keep]
     keep = np.isfinite(rough).all(axis=(1, 2))
     rough, source = rough[keep], source[keep]
-    passed = _classify_many(rough, K, ["a4", "card"], 2 * LOOSE_FACTOR)
+    passed = _classify_many(rough, K, RECTANGLES, 2 * LOOSE_FACTOR)
     quads: list[np.ndarray] = []
     if passed.any():
         shape_ok, src = rough[passed], source[passed]
@@ -619,7 +623,8 @@ def _candidate_groups(
         todo = ~passed & big
         if todo.any():
             area = np.array([polygons[i][1] for i in source[todo]])
-            completed = _complete_many(rough[todo], area, K, h, w)
+            sizes = [SIZES_MM[k] for k in SHEETS if k in kinds]
+            completed = np.concatenate([_complete_many(rough[todo], area, K, h, w, size) for size in sizes])
             if len(completed):
                 _, first = np.unique(
                     np.round(completed / 4.0).astype(np.int64).reshape(len(completed), -1), axis=0, return_index=True
@@ -632,9 +637,12 @@ def _candidate_groups(
     return groups
 
 
-def _complete_many(quads: np.ndarray, region_area: np.ndarray, K: np.ndarray, h: int, w: int) -> np.ndarray:
+def _complete_many(
+    quads: np.ndarray, region_area: np.ndarray, K: np.ndarray, h: int, w: int, size_mm: tuple[float, float]
+) -> np.ndarray:
     """Sheets (N, 4, 2) px that (M, 4, 2) quads could be with one side wrong (cut across a hidden corner): for
-    each side m, the other three kept and the rectangle of A4's proportions they bound, for either side being the
+    each side m, the other three kept and the rectangle of the sheet's proportions (``size_mm``) they bound, for
+    either side being the
     long one. Only those inside the image, holding the quad and at most MAX_HIDDEN_AREA_RATIO times the region.
 
     Sides m + 1 and m + 3 are parallel on the floor: their images meet at the vanishing point v, and their 3D
@@ -645,7 +653,7 @@ def _complete_many(quads: np.ndarray, region_area: np.ndarray, K: np.ndarray, h:
     k_inv = np.linalg.inv(K)
     hom = np.concatenate([quads, np.ones(quads.shape[:2] + (1,))], axis=2)  # (M, 4, 3)
     lines = np.cross(hom, np.roll(hom, -1, axis=1))  # side i: corner i -> i + 1
-    length, width = SIZES_MM["a4"]
+    length, width = size_mm
     out = []
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
         for m in range(4):
@@ -1160,10 +1168,12 @@ def _complete_sheet(
     K: np.ndarray,
     valid: np.ndarray | None,
     lines: list[_Line | None] | None = None,
+    size_mm: tuple[float, float] = SIZES_MM[SHEETS[0]],
 ) -> list:
     """Quads (4, 2) px for a sheet of which three sides show and the fourth is hidden or cut short (the foot over
     a corner): the two corners on the three sides' lines that are not their intersections are placed so that
-    the four make a rectangle of A4's proportions (metric, with K), for either side being the long one.
+    the four make a rectangle of the sheet's proportions ``size_mm`` (metric, with K), for either side being the
+    long one.
     ``lines``: ``_fit_sides(quad, ..., FIRST_RADIUS_PX)`` when the caller already has it."""
     from scipy.optimize import least_squares
 
@@ -1187,7 +1197,7 @@ def _complete_sheet(
     d1 = side[1].direction * np.sign(side[1].direction @ (quad[(m + 1) % 4] - c2) or 1.0)
     d3 = side[3].direction * np.sign(side[3].direction @ (quad[m] - c3) or 1.0)
     start = np.array([max(float(d1 @ (quad[(m + 1) % 4] - c2)), 1.0), max(float(d3 @ (quad[m] - c3)), 1.0)])
-    length, width = SIZES_MM["a4"]
+    length, width = size_mm
     out = []
     for target in (length / width, width / length):  # metric |side m + 2| / |side m + 1|
 
@@ -1478,7 +1488,7 @@ def _finish(
     """Refine a rough quad, name it, test it strictly and solve the plane: (score, object) or None (then why,
     in words, appended to ``rejected``).
 
-    A marker's quad comes in its local order (``kinds == ["marker"]``); a sheet's or card's is put in local
+    A marker's quad comes in its local order (``kinds == MARKERS``); a sheet's or card's is put in local
     order once its sides are known. A sheet whose fourth side the rough quad misses (the foot hides a corner,
     the region's outline cuts across it) is completed from its other three (``_complete_sheet``) and tried again;
     ``completed``: the rough quad is such a completion already. A completion's sides must all show their edge
@@ -1498,12 +1508,12 @@ def _finish(
         first_radius=first_radius,
         rejected=rejected,
     )
-    if result is None and "a4" in kinds:
-        for sheet in _complete_sheet(quad, blurred, K, valid, lines=first):
+    for sheet_kind in [k for k in SHEETS if k in kinds] if result is None else []:
+        for sheet in _complete_sheet(quad, blurred, K, valid, lines=first, size_mm=SIZES_MM[sheet_kind]):
             # the quad's own reason stands: a completion is a guess
-            result = _finish_quad(sheet, ["a4"], blurred, K, valid, completed=True)
+            result = _finish_quad(sheet, [sheet_kind], blurred, K, valid, completed=True)
             if result is not None:
-                break
+                return result
     return result
 
 
@@ -1533,7 +1543,8 @@ def _finish_quad(
         return reject("a side's edge could not be traced along it")
     corners, lines = refined
     # a marker is read by its pattern, not cut out by the border: it only has to lie in the image
-    if not _inside(corners, h, w, margin=0.0 if kinds == ["marker"] else BORDER_MARGIN_PX):
+    marker = all(references.kind(k).detector == "marker" for k in kinds)
+    if not _inside(corners, h, w, margin=0.0 if marker else BORDER_MARGIN_PX):
         return reject("a corner lies on or beyond the edge of the photo")
     if min(np.linalg.norm(np.roll(corners, -1, axis=0) - corners, axis=1)) < MIN_SIDE_PX:
         return reject("it is too small in the photo")
@@ -1543,7 +1554,7 @@ def _finish_quad(
     min_side_support = COMPLETED_MIN_SIDE_SUPPORT if completed else MIN_SIDE_SUPPORT
     if supports.min() < min_side_support or supports.mean() < MIN_MEAN_SUPPORT:
         return reject(f"a side's edge is missing along {100 * (1 - supports.min()):.0f} % of the side where it is seen")
-    if coverage.min() < MIN_COVERAGE["a4"][0] or coverage.mean() < MIN_COVERAGE["a4"][1]:
+    if coverage.min() < _LOOSEST_COVERAGE[0] or coverage.mean() < _LOOSEST_COVERAGE[1]:
         return reject(f"its sides show along only {100 * coverage.mean():.0f} % of their length (covered)")
     if _curved(residuals, np.linalg.norm(np.roll(corners, -1, axis=0) - corners, axis=1)):
         return reject(f"a side is not straight (scatter {residuals.max():.1f} px: curled, or a curved outline over it)")
@@ -1555,31 +1566,33 @@ def _finish_quad(
     # small or oblique objects measure their shape less well: the tolerances widen with the corners' noise
     tol_ratio = min(max(ASPECT_TOLERANCE, 3.0 * ratio_sd), MAX_ASPECT_TOLERANCE)
     tol_angle = min(max(ANGLE_TOLERANCE_DEG, 3.0 * angle_sd), MAX_ANGLE_TOLERANCE_DEG)
-    if kinds == ["marker"]:
-        kind, start = "marker", 0
-        if abs(math.log(shape[0])) > tol_ratio or abs(shape[1] - 90.0) > tol_angle:
+    if marker:
+        kind, start = kinds[0], 0
+        if abs(math.log(shape[0] / references.kind(kind).aspect)) > tol_ratio or abs(shape[1] - 90.0) > tol_angle:
             return reject("its shape is not square")
     else:
-        # named among both kinds, so that a sheet asked for as a card is not one
-        found = _classify(corners, K, ["a4", "card"], tol_ratio=tol_ratio, tol_angle=tol_angle)
+        # named among every rectangle kind, so that a sheet asked for as a card is not one
+        found = _classify(corners, K, RECTANGLES, tol_ratio=tol_ratio, tol_angle=tol_angle)
         if found is None or found[0] not in kinds:
             ratio, angle = max(shape[0], 1.0 / shape[0]), shape[1]
+            aspects = ", ".join(f"{references.kind(k).described} {references.kind(k).aspect:.3f}" for k in RECTANGLES)
             return reject(
-                f"its shape is neither A4's nor a card's (side ratio {ratio:.3f}, A4 1.414, card 1.586; corner angle "
+                f"its shape is no reference object's (side ratio {ratio:.3f}; {aspects}; corner angle "
                 f"{angle:.1f} deg; the photo's focal length may be wrong)"
             )
         kind, start = found
+    sheet = kind in SHEETS
     if coverage.min() < MIN_COVERAGE[kind][0] or coverage.mean() < MIN_COVERAGE[kind][1]:
         return reject(f"its sides show along only {100 * coverage.mean():.0f} % of their length (covered)")
     if start:
         corners = np.roll(corners, -start, axis=0)
         lines = lines[start:] + lines[:start]
         perturbed = [np.roll(c, -start, axis=0) for c in perturbed]
-    if kind == "a4" and not _is_paper(corners, lines):
+    if sheet and not _is_paper(corners, lines):
         return reject("it is not white paper brighter than the floor")
-    if kind == "a4" and valid is not None and not _blank_inside(corners, lines, valid, blurred):
+    if sheet and valid is not None and not _blank_inside(corners, lines, valid, blurred):
         return reject("it is not blank inside (a pattern or an object on it: tiles, not a sheet)")
-    if kind == "a4":
+    if sheet:
         strange, outside = _strange_borders(corners, lines)
         # a completed sheet's fourth side runs where the foot hides it (its colours are the foot's), not beside it
         if outside or len(strange) > (1 if completed else 0):
@@ -1588,15 +1601,15 @@ def _finish_quad(
     if _continues(blurred, corners, lines, valid):
         return reject("its sides run on past its corners (tiles, planks or a printed grid)")
     at_corner = [(j, ln) for i, ln in enumerate(lines) for j in (i, (i + 1) % 4)]  # each corner's two lines
-    if kind == "a4":
+    if sheet:
         corners, lines, perturbed, coverage = _clean_sides(corners, lines, blurred, perturbed)
-    if kind == "a4" and (bowed := _bowed_corners(corners, lines, blurred)) is not None:
+    if sheet and (bowed := _bowed_corners(corners, lines, blurred)) is not None:
         local_perturbed = _perturbed_corner_pairs(bowed)
         local = _corners_of(bowed)
         local_sd = _shape_sd(local, local_perturbed, K)
         tol_ratio = min(max(ASPECT_TOLERANCE, 3.0 * local_sd[0]), MAX_ASPECT_TOLERANCE)
         tol_angle = min(max(ANGLE_TOLERANCE_DEG, 3.0 * local_sd[1]), MAX_ANGLE_TOLERANCE_DEG)
-        if _classify(local, K, ["a4", "card"], tol_ratio=tol_ratio, tol_angle=tol_angle) == ("a4", 0):
+        if _classify(local, K, RECTANGLES, tol_ratio=tol_ratio, tol_angle=tol_angle) == (kind, 0):
             corners, perturbed = local, local_perturbed
             at_corner = [(j, ln) for j, pair in enumerate(bowed) for ln in pair]
     solved = rectangle_pose(corners, kind, K)

@@ -26,13 +26,14 @@ import cv2
 import numpy as np
 import torch
 
+from footmesh import references
 from footmesh.config import MeasureConfig
 from footmesh.eval import thesis
 from footmesh.measure import FootLandmarks, measure_foot
 from footmesh.model.layer import default_model
 
 MODES = ("rgb_ref", "rgbd", "depth", "rgb", "rgbd_heic")
-REFERENCES = ("a4", "card", "marker")
+REFERENCES = references.NAMES
 EVAL_SEED = 4242
 """Seed of the test photos (training used seeds 1-3)."""
 SEED_MODE = {"rgbd_heic": "rgbd"}

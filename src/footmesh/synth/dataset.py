@@ -32,7 +32,7 @@ side                   () int8              0 left, 1 right
 K                      (3, 3) float64       intrinsics, px
 cam_from_foot          (4, 4) float64       foot frame -> camera: ``vertices = R @ model(...) + t``
 cam_from_scene         (4, 4) float64       scene (floor z = 0) frame -> camera
-ref_type               () int8              0 none, 1 a4, 2 card, 3 marker (``scene.REFERENCE_KINDS``)
+ref_type               () int8              0 none, 1 a4, 2 card, 3 marker (``ReferenceKind.dataset_id``)
 ref_corners3d          (4, 3) float32       reference rectangle corners, camera frame, mm (NaN if none)
 ref_corners2d          (4, 2) float32       their projections, px (NaN if none)
 ref_corners_visible    (4,) bool            in the image and not hidden

@@ -27,6 +27,7 @@ import numpy as np
 import torch
 from scipy import ndimage, sparse
 
+from footmesh import references
 from footmesh.geometry.camera import project
 from footmesh.geometry.mesh import face_normals, vertex_normals
 from footmesh.model.layer import FootModel
@@ -34,7 +35,6 @@ from footmesh.model.skin import SkinColours, load_skin_colours
 from footmesh.synth import kernels, raster, textures
 from footmesh.synth.scene import (
     OTHER_FOOT_STREAM,
-    REFERENCE_KINDS,
     Scene,
     SynthConfig,
     camera_pose,
@@ -314,7 +314,7 @@ class Renderer:
             "K": k,
             "cam_from_foot": cam_from_foot,
             "cam_from_scene": cam_from_scene,
-            "ref_type": np.int8(REFERENCE_KINDS.index(ref_kind)),
+            "ref_type": np.int8(0 if ref_kind == "none" else references.kind(ref_kind).dataset_id),
             "ref_corners3d": ref3d.astype(np.float32),
             "ref_corners2d": ref2d.astype(np.float32),
             "ref_corners_visible": ref_vis,

@@ -41,9 +41,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from footmesh import references
 from footmesh.synth.textures import FloorParams, reference_extent
 
-REFERENCE_KINDS = ("none", "a4", "card", "marker")
+REFERENCE_KINDS = ("none", *references.NAMES)
+"""``--reference`` choices besides ``mixed``; a sample's ``ref_type`` is its kind's ``ReferenceKind.dataset_id``."""
 REFERENCE_CHOICES = (*REFERENCE_KINDS, "mixed")
 VIEW_CHOICES = ("random", "thesis")
 NUM_THESIS_VIEWS = 22
@@ -74,7 +76,7 @@ class SynthConfig:
     roll_deg: float = 10.0
     leg_top_mm: tuple[float, float] = (380.0, 520.0)
     reference_probs: dict[str, float] = field(
-        default_factory=lambda: {"none": 0.25, "a4": 0.35, "card": 0.2, "marker": 0.2}
+        default_factory=lambda: {"none": 0.25, **{k.name: k.synth_share for k in references.KINDS}}
     )
     other_foot_fraction: float = 0.0
     """Share of samples showing the other foot and leg beside the first (both labelled foot; joints of the first)."""
@@ -317,7 +319,7 @@ def sample_scene(seed: int, index: int, config: SynthConfig, num_components: int
 
 def _sample_reference(rng: np.random.Generator, kind: str, camera_azimuth: float) -> Reference:
     """A reference object on the floor; its placement is relative to a nominal foot (heel at 0, 260 mm long)."""
-    under = kind == "a4" and rng.random() < 0.4
+    under = references.kind(kind).detector == "sheet" and rng.random() < 0.4
     margin, length, width = reference_extent(kind)
     tint = tuple(float(c) for c in np.clip(rng.uniform(0.9, 1.0) - rng.uniform(0, 0.05, 3), 0, 1))
     salt = float(rng.uniform(0, 100))

@@ -11,17 +11,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from footmesh import references
+
 FLOOR_KINDS = ("wood", "tiles", "carpet", "plain")
 
-A4_MM = (297.0, 210.0)
-"""A4 sheet, length x width (ISO 216)."""
-CARD_MM = (85.60, 53.98)
-"""ID-1 bank card, length x width (ISO/IEC 7810); corners rounded with radius ``CARD_CORNER_MM``."""
 CARD_CORNER_MM = 3.18
-MARKER_MM = 100.0
-"""Printed ArUco marker: side of its black square (the stored corners), mm."""
-MARKER_MARGIN_MM = 20.0
-"""White paper around the printed marker, mm."""
+"""Radius of a card's rounded corners (ISO/IEC 7810 ID-1); the cards' sizes: ``footmesh.references``."""
 ARUCO_DICT = "DICT_4X4_50"
 ARUCO_ID = 0
 # ``cv2.aruco.generateImageMarker(getPredefinedDictionary(DICT_4X4_50), 0, 6) > 0``: 1 = white; the outer ring
@@ -115,13 +110,13 @@ def floor_colour(p: FloorParams, x: np.ndarray, y: np.ndarray) -> np.ndarray:
 
 def reference_size(kind: str) -> tuple[float, float]:
     """Length x width (mm) of the rectangle whose corners are stored for a reference object."""
-    return {"a4": A4_MM, "card": CARD_MM, "marker": (MARKER_MM, MARKER_MM)}[kind]
+    return references.kind(kind).size_mm
 
 
 def reference_extent(kind: str) -> tuple[float, float, float]:
     """Margin (mm) of the drawn object around the stored rectangle, and its drawn length x width."""
     w, h = reference_size(kind)
-    margin = MARKER_MARGIN_MM if kind == "marker" else 0.0
+    margin = references.kind(kind).margin_mm
     return margin, w + 2 * margin, h + 2 * margin
 
 
@@ -144,11 +139,11 @@ def reference_colour(
 
 def reference_params(kind: str, tint: tuple[float, float, float], salt: float) -> tuple:
     """The arguments of ``kernels.reference_albedo`` before the point: table, bits, kind id, size, margin, colours."""
-    length, width = reference_size(kind)
-    margin = MARKER_MARGIN_MM if kind == "marker" else 0.0
+    ref = references.kind(kind)
+    length, width = ref.size_mm
     card = _CARD[int(_hash(np.array(salt), 5.0)[()] * len(_CARD))]
-    kind_id = {"a4": 1, "card": 2, "marker": 3}[kind]
-    return _TABLE, ARUCO_BITS, kind_id, length, width, margin, card, np.asarray(tint, dtype=np.float64), float(salt)
+    look = references.LOOKS.index(ref.look) + 1
+    return _TABLE, ARUCO_BITS, look, length, width, ref.margin_mm, card, np.asarray(tint, dtype=np.float64), float(salt)
 
 
 def floor_params(p: FloorParams) -> tuple:

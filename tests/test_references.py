@@ -1,0 +1,32 @@
+"""The registry of reference objects (footmesh.references): each kind is drawn and found at its registered size."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from footmesh import references
+from footmesh.synth.render import Renderer
+from footmesh.synth.scene import SynthConfig
+
+
+def test_the_registry_is_consistent():
+    ids = [k.dataset_id for k in references.KINDS]
+    assert len(set(references.NAMES)) == len(references.NAMES) and 0 not in ids and len(set(ids)) == len(ids)
+    assert len({k.preference for k in references.KINDS}) == len(references.KINDS)
+    assert references.BY_PREFERENCE[0] == "marker"  # the unambiguous one wins
+    assert references.with_detector("sheet") == ["a4"]
+    assert references.described_choices() == "an A4 sheet, a bank card or the printed marker"
+    with pytest.raises(ValueError, match="one of a4, card, marker"):
+        references.kind("letter")
+    assert references.kind("card").size_rel_sd == pytest.approx(0.125 / 85.60 / np.sqrt(3))
+
+
+@pytest.mark.parametrize("name", references.NAMES)
+def test_each_kind_is_rendered_at_its_registered_size(name):
+    kind = references.kind(name)
+    sample = Renderer(SynthConfig(size=160, reference=name)).render(5, 0)
+    assert int(sample["ref_type"]) == kind.dataset_id
+    corners = sample["ref_corners3d"].astype(np.float64)
+    sides = np.linalg.norm(np.roll(corners, -1, axis=0) - corners, axis=1)
+    np.testing.assert_allclose(sides, [*kind.size_mm, *kind.size_mm], atol=1e-3)
