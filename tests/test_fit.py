@@ -11,6 +11,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from footmesh.cues import Cues
+from footmesh.eval.fit_check import main, synthetic_cues
 from footmesh.fit import (
     FitConfig,
     FitInit,
@@ -21,14 +22,12 @@ from footmesh.fit import (
     foot_shown,
     forward_kinematics_by_level,
     leg_occludes,
-    main,
     mesh_side_residuals,
     parameter_names,
     projected_mask,
     shape_for_scale,
     silhouette_contour,
     skin_batched,
-    synthetic_cues,
 )
 from footmesh.model import lbs
 from footmesh.model import skeleton as sk

@@ -51,7 +51,6 @@ it. A refit under perturbed cues, warm-started with ``FitInit.from_fit``, is the
 
 from __future__ import annotations
 
-import argparse
 import contextlib
 import functools
 import logging
@@ -70,6 +69,7 @@ from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
 from footmesh.cues import Cues
+from footmesh.fit import terms
 from footmesh.geometry.alignment import weighted_procrustes
 from footmesh.geometry.camera import project
 from footmesh.geometry.rotations import skew
@@ -110,8 +110,6 @@ PNP_CORE_JOINTS = np.array([0, 1, 4, 7, 10, 13, 16, 17])
 """Midfoot, the five metatarsophalangeal joints, ankle and heel: where no toe angle moves them."""
 PNP_DISTINCT_DEG = 10.0
 """PnP starts closer than this to one already kept are dropped."""
-FREE_SPACE_HUBER = 3.0
-"""Huber threshold of the free-space term, in sigmas: a grossly misplaced start must not be dominated by it."""
 SCALE_SOURCES = ("depth", "floor", "none")
 _LOWER = np.asarray(sk.DOF_LOWER)
 _UPPER = np.asarray(sk.DOF_UPPER)
@@ -876,52 +874,7 @@ class _SideProblem:
 
     def residuals(self, out: dict[str, torch.Tensor], assoc: _Association) -> dict[str, torch.Tensor]:
         """Whitened residuals (B, m) of each term with the association held fixed (``out`` over ``assoc.ids``)."""
-        ev, cfg, blocks = self.ev, self.config, assoc.blocks
-        res = {}
-        v, j = out["vertices"], out["joints"]
-        res["joints"] = ((self.project(j) - torch.from_numpy(ev.joints)) / cfg.joint_sigma_px).reshape(len(v), -1)
-        b = blocks["inside"]
-        if len(b["index"]):
-            u = self.project(v[:, b["index"]])
-            # the distance transform to first order about the association's projection
-            res["inside"] = (b["value"] + ((u - b["uv"]) * b["grad"]).sum(-1)) / cfg.silhouette_sigma_px
-        b = blocks["contour"]
-        u = self.project(v[:, b["index"]])
-        res["contour"] = ((b["points"] - u) * b["normal"]).sum(-1) / cfg.silhouette_sigma_px
-        if "depth" in blocks:
-            b = blocks["depth"]
-            res["depth"] = ((b["points"] - v[:, b["index"]]) * b["normal"]).sum(-1) / cfg.depth_sigma_mm
-            b = blocks["free_space"]
-            if len(b["index"]):
-                res["free_space"] = (b["limit"] - v[:, b["index"], 2]) / cfg.depth_sigma_mm
-        if ev.floor is not None:
-            plane = torch.from_numpy(ev.floor)
-            b = blocks["floor_contact"]
-            res["floor_contact"] = (v[:, b["index"]] @ plane[:3] + plane[3]) / cfg.floor_sigma_mm
-            up = plane[:3] @ out["rotation"]  # the floor normal in the foot frame (B, 3)
-            res["upright"] = up[:, :2] / cfg.upright_sigma_rad
-        if "camera_above" in blocks:
-            # camera centre in the foot frame: -R^T t; it must not be below the sole plane z = 0
-            height = -(out["rotation"][:, :, 2] * out["translation"]).sum(-1)
-            res["camera_above"] = (height.clamp_max(0.0) / cfg.camera_above_sigma_mm)[:, None]
-        if self.distance0 is not None:
-            res["distance"] = ((j[:, 0].norm(dim=-1) - self.distance0) / cfg.distance_sigma_mm)[:, None]
-        res["shape_prior"] = out["shape"] * math.sqrt(cfg.shape_prior_weight)
-        res["angle_prior"] = (out["angles"] - self.angle_mean) / self.angle_sd
-        return res
-
-    def _kernel(self, name: str) -> tuple[str, float]:
-        cfg = self.config
-        kernels = {
-            "joints": ("huber", cfg.joint_huber),
-            "contour": ("gm", cfg.silhouette_robust),
-            "inside": ("gm", cfg.silhouette_robust),
-            "depth": ("gm", cfg.depth_robust),
-            "floor_contact": ("gm_above", cfg.floor_robust),
-            "upright": ("gm", cfg.upright_robust),
-            "free_space": ("huber", FREE_SPACE_HUBER),
-        }
-        return kernels.get(name, ("l2", 0.0))
+        return terms.residuals(self, out, assoc.blocks)
 
     # --- association ------------------------------------------------------------------------------------------
 
@@ -1024,7 +977,7 @@ class _SideProblem:
             res = self.residuals(out, assoc)
         for name, s in res.items():
             s = s[0].numpy()
-            kind, k = self._kernel(name)
+            kind, k = terms.kernel(name, self.config)
             scale = blocks[name]["scale"]
             blocks[name]["sqrt_weight"] = t(np.sqrt(scale * _irls_weight(kind, s, k)))
             assoc.terms[name] = float(np.sum(scale * _rho(kind, s, k)))
@@ -1121,23 +1074,14 @@ class _SideProblem:
         return full
 
     def quality(self, state: _State, assoc: _Association) -> dict[str, float]:
-        """How well the fit explains the image (unweighted, in px / mm): for a caller to refuse a bad fit."""
+        """How well the fit explains the image (unweighted, in px / mm), each term's figures: for a caller to refuse
+        a bad fit (``FitQuality``)."""
         with torch.no_grad():
             res = self.residuals(self.evaluate(state, np.zeros((1, self.arrays.num_params)), assoc.ids), assoc)
-        cfg, ev = self.config, self.ev
-        contour = np.abs(res["contour"][0].numpy()) * cfg.silhouette_sigma_px
-        joints = np.linalg.norm(res["joints"][0].numpy().reshape(-1, 2), axis=1) * cfg.joint_sigma_px
-        weight = np.maximum(ev.joint_weight, 1e-9)
-        inside = res["inside"][0].numpy() * cfg.silhouette_sigma_px if "inside" in res else np.zeros(0)
-        out = {
-            # no outline point associated at all (a fit far off the silhouette): none of it follows the outline
-            "contour_within_2px": float(np.mean(contour <= 2.0)) if contour.size else 0.0,
-            "vertices_outside_2px": float(np.sum(inside > 2.0) / len(self.arrays.subset)),
-            "joint_error_px": float(np.sum(weight * joints) / np.sum(weight)),
-        }
-        if "depth" in res and res["depth"][0].numel():
-            out["depth_median_mm"] = float(np.median(np.abs(res["depth"][0].numpy()))) * cfg.depth_sigma_mm
-        return out
+        figures = {"vertices_outside_2px": 0.0}  # no vertex outside the silhouette gives the inside term no block
+        for name, r in res.items():
+            figures.update(terms.BY_NAME[name].quality(self, r[0].numpy()))
+        return figures
 
     def covariance(self, state: _State, assoc: _Association) -> np.ndarray:
         """Gauss-Newton covariance H^-1 (P, P) of every parameter at ``state`` (pseudo-inverse if singular)."""
@@ -1464,34 +1408,6 @@ def _fit(cues, K, depth_mm, cam_from_floor, side, init, config, model) -> FootFi
     )
 
 
-# ----------------------------------------------------------------------------------------------------------
-# Synthetic check: how good the fit is with perfect cues (plus noise)
-# ----------------------------------------------------------------------------------------------------------
-
-MODES = ("depth", "floor", "none")
-"""Evidence of ``evaluate_on_synthetic``: depth map + intrinsics, floor plane + RGB cues, RGB cues only."""
-
-
-def synthetic_cues(
-    sample: dict[str, np.ndarray],
-    joint_noise_px: float = 3.0,
-    rng: np.random.Generator | int | None = None,
-    visible_confidence: float = 0.9,
-    hidden_confidence: float = 0.3,
-) -> Cues:
-    """Cues from a synthetic sample's ground truth (``synth.render.Renderer.render``): its silhouette, its 2D
-    joints plus Gaussian noise of ``joint_noise_px`` (per coordinate), confidence from the joints' visibility."""
-    rng = np.random.default_rng(rng)
-    joints = sample["joints2d"] + rng.normal(0.0, joint_noise_px, sample["joints2d"].shape)
-    confidence = np.where(sample["joints_visible"], visible_confidence, hidden_confidence)
-    return Cues(
-        silhouette=sample["silhouette"].astype(np.float32),
-        joints2d_px=joints.astype(np.float32),
-        joint_confidence=confidence.astype(np.float32),
-        input="rgb",
-    )
-
-
 def canonical_measures(shape: np.ndarray, model: FootModel | None = None) -> tuple[float, float]:
     """(stick length, ball width) in mm of the zero-pose foot of ``shape`` (K,) (``measure`` definitions)."""
     from footmesh.model.anatomy import ball_width_mm, stick_length_mm
@@ -1500,136 +1416,3 @@ def canonical_measures(shape: np.ndarray, model: FootModel | None = None) -> tup
     with torch.no_grad():
         v = model(torch.as_tensor(shape, dtype=torch.float32)[None]).vertices[0].double().numpy()
     return stick_length_mm(v), ball_width_mm(v)
-
-
-@dataclass(frozen=True)
-class SyntheticCheck:
-    """Errors of ``fit_foot`` on synthetic scenes of one mode (fitted - true, mm unless stated)."""
-
-    mode: str
-    scenes: int
-    length_mae_mm: float
-    width_mae_mm: float
-    ratio_mae: float  # |width/length fitted - true|
-    vertex_error_mm: float  # mean vertex distance in the camera frame (meaningless unscaled)
-    side_accuracy: float
-    length_z_rms: float  # RMS of length error / the covariance's predicted SD (1 = calibrated)
-    seconds_median: float
-    length_errors: np.ndarray = field(repr=False)
-    width_errors: np.ndarray = field(repr=False)
-    natural: np.ndarray = field(repr=False)  # (n,) bool: the scene's pose is an everyday one, not a thesis "ik" one
-
-    def line(self) -> str:
-        nat = self.natural
-        return (
-            f"{self.mode:6s} n={self.scenes:3d}  length MAE {self.length_mae_mm:5.2f} mm  ball width MAE "
-            f"{self.width_mae_mm:5.2f} mm  (everyday poses, n={int(nat.sum())}: "
-            f"{np.abs(self.length_errors[nat]).mean():5.2f} / {np.abs(self.width_errors[nat]).mean():4.2f} mm)"
-            f"  width/length MAE {self.ratio_mae:.4f}  vertex {self.vertex_error_mm:6.2f} mm"
-            f"  side {100 * self.side_accuracy:5.1f} %  length z-RMS {self.length_z_rms:5.2f}"
-            f"  {1000 * self.seconds_median:5.0f} ms/fit"
-        )
-
-
-def evaluate_on_synthetic(
-    n: int = 50,
-    mode: str = "depth",
-    seed: int = 1234,
-    size: int = 320,
-    joint_noise_px: float = 3.0,
-    side: str = "auto",
-    config: FitConfig | None = None,
-    standing_only: bool | None = None,
-) -> SyntheticCheck:
-    """Fit ``n`` synthetic scenes with true cues + noise and report the length / ball-width errors.
-
-    ``mode``: "depth" (the noisy depth map), "floor" (the true floor plane, RGB cues only) or "none".
-    ``side``: "auto" (the fit picks), "given" (the true side is declared), "left" or "right".
-    ``standing_only`` (default: True for "floor") skips lifted feet, which the floor contact term assumes away.
-    """
-    from footmesh.synth.render import Renderer
-    from footmesh.synth.scene import SynthConfig
-
-    if mode not in MODES:
-        raise ValueError(f"mode must be one of {MODES}, got {mode!r}")
-    standing_only = (mode == "floor") if standing_only is None else standing_only
-    renderer = Renderer(SynthConfig(size=size, reference="a4"))
-    model = default_model()
-    rows = []
-    index = 0
-    while len(rows) < n:
-        sample = renderer.render(seed, index)
-        index += 1
-        if standing_only and bool(sample["lifted"]):
-            continue
-        cues = synthetic_cues(sample, joint_noise_px, rng=[seed, index])
-        depth = sample["depth"].astype(np.float32) if mode == "depth" else None
-        floor = sample["cam_from_scene"] if mode == "floor" else None
-        true_side = SIDES[int(sample["side"])]
-        fit_side = true_side if side == "given" else side
-        fit = fit_foot(cues, sample["K"], depth, floor, side=fit_side, config=config, model=model)
-        length, width = canonical_measures(sample["shape"], model)
-        fit_length, fit_width = canonical_measures(fit.shape, model)
-        sd = _length_sd(fit, model)
-        rows.append(
-            (
-                fit_length - length,
-                fit_width - width,
-                fit_width / fit_length - width / length,
-                float(np.linalg.norm(fit.vertices_cam - sample["vertices"], axis=1).mean()),
-                fit.side == true_side,
-                (fit_length - length) / sd if sd > 0 else np.nan,
-                fit.seconds,
-                renderer.scene(seed, index - 1).pose_method == "natural",
-            )
-        )
-        log.info("scene %d: length %+.2f mm, width %+.2f mm, %.2f s", index - 1, rows[-1][0], rows[-1][1], fit.seconds)
-    a = np.array(rows, dtype=np.float64)
-    return SyntheticCheck(
-        mode=mode,
-        scenes=n,
-        length_mae_mm=float(np.abs(a[:, 0]).mean()),
-        width_mae_mm=float(np.abs(a[:, 1]).mean()),
-        ratio_mae=float(np.abs(a[:, 2]).mean()),
-        vertex_error_mm=float(a[:, 3].mean()),
-        side_accuracy=float(a[:, 4].mean()),
-        length_z_rms=float(np.sqrt(np.nanmean(a[:, 5] ** 2))) if mode != "none" else float("nan"),
-        seconds_median=float(np.median(a[:, 6])),
-        length_errors=a[:, 0],
-        width_errors=a[:, 1],
-        natural=a[:, 7].astype(bool),
-    )
-
-
-def _length_sd(fit: FootFit, model: FootModel, samples: int = 64) -> float:
-    """SD of the canonical stick length under ``fit.shape_covariance`` (mm), by sampling."""
-    from footmesh.model.anatomy import stick_length_mm
-
-    shapes = fit.sample_shapes(samples, rng=0)
-    with torch.no_grad():
-        v = model(torch.as_tensor(shapes, dtype=torch.float32)).vertices.double().numpy()
-    return float(np.std([stick_length_mm(x) for x in v]))
-
-
-def main(argv: Sequence[str] | None = None) -> int:
-    """``python -m footmesh.fit --check N [--modes depth floor none]``: the synthetic check, one line per mode."""
-    parser = argparse.ArgumentParser(prog="python -m footmesh.fit", description=main.__doc__)
-    parser.add_argument("--check", type=int, default=50, metavar="N", help="scenes per mode (default 50)")
-    parser.add_argument("--modes", nargs="+", choices=MODES, default=list(MODES))
-    parser.add_argument("--seed", type=int, default=1234)
-    parser.add_argument("--size", type=int, default=320, help="image size, px (default 320)")
-    parser.add_argument("--noise", type=float, default=3.0, help="joint noise, px (default 3)")
-    parser.add_argument("--side", choices=("auto", "given"), default="auto", help="auto, or the true side given")
-    parser.add_argument("--threads", type=int, default=2, help="torch threads (default 2)")
-    parser.add_argument("-v", "--verbose", action="store_true")
-    args = parser.parse_args(argv)
-    logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING, format="%(message)s")
-    torch.set_num_threads(args.threads)
-    for mode in args.modes:
-        check = evaluate_on_synthetic(args.check, mode, args.seed, args.size, args.noise, args.side)
-        print(check.line(), flush=True)
-    return 0
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())

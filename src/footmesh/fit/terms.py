@@ -1,0 +1,243 @@
+"""The fit's cost terms, one class each: its whitened residual, its robust kernel and what it says of the fit's
+quality, registered in ``TERMS`` (the order the residuals are stacked in).
+
+Adding a term = one class here and one line in ``TERMS`` (its weights in ``FitConfig``, its data association in
+``_SideProblem.associate`` when it needs model vertices matched to image evidence). A term whose block the
+association did not make this time (no depth, no floor) is left out of that iteration's cost.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import TYPE_CHECKING, Any, ClassVar
+
+import numpy as np
+import torch
+
+if TYPE_CHECKING:
+    from footmesh.fit.core import FitConfig, _SideProblem
+
+Blocks = dict[str, dict[str, Any]]
+"""Per term, what the data association fixed for this iteration (indices, matched points, weights)."""
+
+
+class Term:
+    """A cost term: ``residual`` (B, m) whitened, summed as ``scale * rho_kernel(r)`` over its m entries."""
+
+    name: ClassVar[str]
+
+    def kernel(self, config: FitConfig) -> tuple[str, float]:
+        """(kind, scale) of the robust kernel: ``l2``, ``huber``, ``gm`` (Geman-McClure) or ``gm_above``."""
+        return "l2", 0.0
+
+    def residual(self, problem: _SideProblem, out: dict[str, torch.Tensor], blocks: Blocks) -> torch.Tensor | None:
+        """(B, m) residuals of the model ``out`` (``_SideProblem.evaluate``), or None when the term has no block."""
+        raise NotImplementedError
+
+    def quality(self, problem: _SideProblem, residual: np.ndarray) -> dict[str, float]:
+        """Figures of ``FitQuality`` this term gives, from its unweighted residual (m,) at the optimum."""
+        return {}
+
+
+class Joints(Term):
+    """Projected model joint - 2D joint, px, weighted by the joint's confidence (Huber)."""
+
+    name = "joints"
+
+    def kernel(self, config):
+        return "huber", config.joint_huber
+
+    def residual(self, problem, out, blocks):
+        j = out["joints"]
+        detected = torch.from_numpy(problem.ev.joints)
+        return ((problem.project(j) - detected) / problem.config.joint_sigma_px).reshape(len(j), -1)
+
+    def quality(self, problem, residual):
+        errors = np.linalg.norm(residual.reshape(-1, 2), axis=1) * problem.config.joint_sigma_px
+        weight = np.maximum(problem.ev.joint_weight, 1e-9)
+        return {"joint_error_px": float(np.sum(weight * errors) / np.sum(weight))}
+
+
+class Inside(Term):
+    """Distance transform of the silhouette's outside at each projected vertex, px: vertices must fall inside the
+    silhouette (those hidden by the leg skipped) (Geman-McClure)."""
+
+    name = "inside"
+
+    def kernel(self, config):
+        return "gm", config.silhouette_robust
+
+    def residual(self, problem, out, blocks):
+        b = blocks["inside"]
+        if not len(b["index"]):
+            return None
+        u = problem.project(out["vertices"][:, b["index"]])
+        # the distance transform to first order about the association's projection
+        return (b["value"] + ((u - b["uv"]) * b["grad"]).sum(-1)) / problem.config.silhouette_sigma_px
+
+    def quality(self, problem, residual):
+        outside = residual * problem.config.silhouette_sigma_px
+        return {"vertices_outside_2px": float(np.sum(outside > 2.0) / len(problem.arrays.subset))}
+
+
+class Contour(Term):
+    """Silhouette contour samples to their nearest projected vertex (of the subset or the mesh's rim), along the
+    contour normal, px (Geman-McClure)."""
+
+    name = "contour"
+
+    def kernel(self, config):
+        return "gm", config.silhouette_robust
+
+    def residual(self, problem, out, blocks):
+        b = blocks["contour"]
+        u = problem.project(out["vertices"][:, b["index"]])
+        return ((b["points"] - u) * b["normal"]).sum(-1) / problem.config.silhouette_sigma_px
+
+    def quality(self, problem, residual):
+        off = np.abs(residual) * problem.config.silhouette_sigma_px
+        # no outline point associated at all (a fit far off the silhouette): none of it follows the outline
+        return {"contour_within_2px": float(np.mean(off <= 2.0)) if off.size else 0.0}
+
+
+class Depth(Term):
+    """Back-projected depth pixels to their nearest camera-facing vertex, point to plane, mm (Geman-McClure)."""
+
+    name = "depth"
+
+    def kernel(self, config):
+        return "gm", config.depth_robust
+
+    def residual(self, problem, out, blocks):
+        if "depth" not in blocks:
+            return None
+        b = blocks["depth"]
+        return ((b["points"] - out["vertices"][:, b["index"]]) * b["normal"]).sum(-1) / problem.config.depth_sigma_mm
+
+    def quality(self, problem, residual):
+        if not residual.size:
+            return {}
+        return {"depth_median_mm": float(np.median(np.abs(residual))) * problem.config.depth_sigma_mm}
+
+
+class FreeSpace(Term):
+    """Camera-facing vertices must not lie in front of the nearest measured depth around their pixel, mm (Huber)."""
+
+    name = "free_space"
+    HUBER = 3.0
+    """Huber threshold, in sigmas: a grossly misplaced start must not be dominated by this term."""
+
+    def kernel(self, config):
+        return "huber", self.HUBER
+
+    def residual(self, problem, out, blocks):
+        if "free_space" not in blocks or not len(blocks["free_space"]["index"]):
+            return None
+        b = blocks["free_space"]
+        return (b["limit"] - out["vertices"][:, b["index"], 2]) / problem.config.depth_sigma_mm
+
+
+class FloorContact(Term):
+    """The lowest vertex touches the floor plane, mm (Geman-McClure above the floor: a foot clearly lifted is let
+    go; least squares below it: nothing goes through the floor)."""
+
+    name = "floor_contact"
+
+    def kernel(self, config):
+        return "gm_above", config.floor_robust
+
+    def residual(self, problem, out, blocks):
+        if problem.ev.floor is None:
+            return None
+        plane = torch.from_numpy(problem.ev.floor)
+        b = blocks["floor_contact"]
+        return (out["vertices"][:, b["index"]] @ plane[:3] + plane[3]) / problem.config.floor_sigma_mm
+
+
+class Upright(Term):
+    """The foot's z axis along the floor normal (a standing foot), radians (Geman-McClure)."""
+
+    name = "upright"
+
+    def kernel(self, config):
+        return "gm", config.upright_robust
+
+    def residual(self, problem, out, blocks):
+        if problem.ev.floor is None:
+            return None
+        up = torch.from_numpy(problem.ev.floor)[:3] @ out["rotation"]  # the floor normal in the foot frame (B, 3)
+        return up[:, :2] / problem.config.upright_sigma_rad
+
+
+class CameraAbove(Term):
+    """No floor and no depth: the camera is above the foot's sole plane (removes the mirror-in-depth twin)."""
+
+    name = "camera_above"
+
+    def residual(self, problem, out, blocks):
+        if "camera_above" not in blocks:
+            return None
+        # camera centre in the foot frame: -R^T t; it must not be below the sole plane z = 0
+        height = -(out["rotation"][:, :, 2] * out["translation"]).sum(-1)
+        return (height.clamp_max(0.0) / problem.config.camera_above_sigma_mm)[:, None]
+
+
+class Distance(Term):
+    """No scale evidence: the midfoot stays at the distance of the mean-size foot (``scaled=False``)."""
+
+    name = "distance"
+
+    def residual(self, problem, out, blocks):
+        if problem.distance0 is None:
+            return None
+        return ((out["joints"][:, 0].norm(dim=-1) - problem.distance0) / problem.config.distance_sigma_mm)[:, None]
+
+
+class ShapePrior(Term):
+    """Shape coefficients ~ N(0, 1) (SD units)."""
+
+    name = "shape_prior"
+
+    def residual(self, problem, out, blocks):
+        return out["shape"] * math.sqrt(problem.config.shape_prior_weight)
+
+
+class AnglePrior(Term):
+    """Angles ~ N(mean, (f SD)^2) per DOF: everyday poses' spread widened by ``angle_prior_sd_factor``."""
+
+    name = "angle_prior"
+
+    def residual(self, problem, out, blocks):
+        return (out["angles"] - problem.angle_mean) / problem.angle_sd
+
+
+TERMS: tuple[Term, ...] = (
+    Joints(),
+    Inside(),
+    Contour(),
+    Depth(),
+    FreeSpace(),
+    FloorContact(),
+    Upright(),
+    CameraAbove(),
+    Distance(),
+    ShapePrior(),
+    AnglePrior(),
+)
+"""Every term, in the order their residuals are stacked."""
+BY_NAME: dict[str, Term] = {term.name: term for term in TERMS}
+
+
+def residuals(problem: _SideProblem, out: dict[str, torch.Tensor], blocks: Blocks) -> dict[str, torch.Tensor]:
+    """Whitened residuals (B, m) of every term that has evidence this iteration, by name, in ``TERMS`` order."""
+    res = {}
+    for term in TERMS:
+        r = term.residual(problem, out, blocks)
+        if r is not None:
+            res[term.name] = r
+    return res
+
+
+def kernel(name: str, config: FitConfig) -> tuple[str, float]:
+    """The robust kernel of the term ``name`` (KeyError for a name no term has: never a silent least squares)."""
+    return BY_NAME[name].kernel(config)
