@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 
 from footmesh import references
-from footmesh.cues import reference
 from footmesh.cues.reference import SIZES_MM, ReferenceObject, detect_reference, search_reference
+from footmesh.cues.reference import quads as quad_tests
 from footmesh.synth.render import Renderer
 from footmesh.synth.scene import REFERENCE_KINDS, SynthConfig, guided_view_config
 
@@ -200,7 +200,7 @@ def test_a_square_of_a_tiled_pattern_is_not_blank_inside():
     """A tiled floor's pattern makes light squares whose straight sides pass every test of a sheet's sides; what
     tells them from a sheet is the inside: blank paper, or a pattern (``_blank_inside``, 12 -> 8 false sheets on
     the 80 real photos of patterned floors in ../shared/real/rafiansyah)."""
-    from footmesh.cues.reference import _blank_inside, _fit_sides
+    from footmesh.cues.reference.sides import _blank_inside, _fit_sides
 
     image = np.full((200, 260, 3), 0.4, np.float32)
     quad = np.array([[40.0, 40.0], [40.0, 160.0], [220.0, 160.0], [220.0, 40.0]])  # canonical order
@@ -284,15 +284,15 @@ def test_one_quad_shape_tests_agree_with_the_vectorised_ones():
     rng = np.random.default_rng(5)
     K = np.array([[800.0, 1.5, 320.0], [0.0, 810.0, 240.0], [0.0, 0.0, 1.0]])
     quads = rng.uniform(0.0, 640.0, (3000, 4, 2))
-    ratio, angle, depths, good = reference._parallelogram_many(quads, K)
-    canonical = reference._canonical_many(quads)
+    ratio, angle, depths, good = quad_tests._parallelogram_many(quads, K)
+    canonical = quad_tests._canonical_many(quads)
     for i, quad in enumerate(quads):
-        one = reference._parallelogram(quad, K)
+        one = quad_tests._parallelogram(quad, K)
         assert (one is not None) == good[i]
         if one is not None:
             assert one[0] == pytest.approx(ratio[i], rel=1e-9) and one[1] == pytest.approx(angle[i], abs=1e-7)
             np.testing.assert_allclose(one[2], depths[i], rtol=1e-9)
-        c = reference._canonical(quad)
+        c = quad_tests._canonical(quad)
         assert (c is None) == bool(np.isnan(canonical[i]).any())
         if c is not None:
             np.testing.assert_array_equal(c, canonical[i])

@@ -1,0 +1,224 @@
+"""Step 5: a rough quad refined, named and tested strictly, its pose and scale uncertainty solved (``_finish``)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from footmesh import references
+from footmesh.cues.reference.objects import ReferenceObject
+from footmesh.cues.reference.params import (
+    _LOOSEST_COVERAGE,
+    ANGLE_TOLERANCE_DEG,
+    ASPECT_TOLERANCE,
+    BORDER_MARGIN_PX,
+    COMPLETED_MIN_SIDE_SUPPORT,
+    DISTANCE_RANGE_MM,
+    FIRST_RADIUS_PX,
+    MAX_ANGLE_TOLERANCE_DEG,
+    MAX_ASPECT_TOLERANCE,
+    MAX_SCALE_REL_SD,
+    MIN_COVERAGE,
+    MIN_MEAN_SUPPORT,
+    MIN_SIDE_PX,
+    MIN_SIDE_SUPPORT,
+    RECTANGLES,
+    SHAPE_WEIGHT,
+    SHEETS,
+    SIZE_REL_SD,
+    SIZES_MM,
+)
+from footmesh.cues.reference.pose import _distance, _shape_sd, rectangle_pose
+from footmesh.cues.reference.quads import _classify, _inside, _parallelogram, _signed_area
+from footmesh.cues.reference.sides import (
+    _blank_inside,
+    _bowed_corners,
+    _clean_sides,
+    _complete_sheet,
+    _continues,
+    _corners_of,
+    _curved,
+    _fit_sides,
+    _is_paper,
+    _Line,
+    _perturbed_corner_pairs,
+    _perturbed_corners,
+    _refine_sides,
+    _strange_borders,
+)
+
+
+def _finish(
+    quad: np.ndarray,
+    kinds: list[str],
+    blurred: np.ndarray,
+    K: np.ndarray,
+    valid: np.ndarray | None,
+    mirrored: bool = False,
+    completed: bool = False,
+    first_radius: float = FIRST_RADIUS_PX,
+    rejected: list[str] | None = None,
+) -> tuple[float, ReferenceObject] | None:
+    """Refine a rough quad, name it, test it strictly and solve the plane: (score, object) or None (then why,
+    in words, appended to ``rejected``).
+
+    A marker's quad comes in its local order (``kinds == MARKERS``); a sheet's or card's is put in local
+    order once its sides are known. A sheet whose fourth side the rough quad misses (the foot hides a corner,
+    the region's outline cuts across it) is completed from its other three (``_complete_sheet``) and tried again;
+    ``completed``: the rough quad is such a completion already. A completion's sides must all show their edge
+    (``COMPLETED_MIN_SIDE_SUPPORT``). ``first_radius``: the search radius (px) across the rough sides.
+    """
+    # the first pass of the sides' refinement is also what the completion starts from: fitted once for both
+    first = _fit_sides(quad, blurred, valid, first_radius)
+    result = _finish_quad(
+        quad,
+        kinds,
+        blurred,
+        K,
+        valid,
+        mirrored,
+        first=first,
+        completed=completed,
+        first_radius=first_radius,
+        rejected=rejected,
+    )
+    for sheet_kind in [k for k in SHEETS if k in kinds] if result is None else []:
+        for sheet in _complete_sheet(quad, blurred, K, valid, lines=first, size_mm=SIZES_MM[sheet_kind]):
+            # the quad's own reason stands: a completion is a guess
+            result = _finish_quad(sheet, [sheet_kind], blurred, K, valid, completed=True)
+            if result is not None:
+                return result
+    return result
+
+
+def _finish_quad(
+    quad: np.ndarray,
+    kinds: list[str],
+    blurred: np.ndarray,
+    K: np.ndarray,
+    valid: np.ndarray | None,
+    mirrored: bool = False,
+    first: list[_Line | None] | None = None,
+    completed: bool = False,
+    first_radius: float = FIRST_RADIUS_PX,
+    rejected: list[str] | None = None,
+) -> tuple[float, ReferenceObject] | None:
+    """``_finish`` without the completion of a sheet (``first``: the sides fitted at ``first_radius``;
+    ``completed``: the quad is a sheet completed across a hidden corner; ``rejected``: why the quad is not the
+    object, appended in words when it is not)."""
+
+    def reject(why: str) -> None:
+        if rejected is not None:
+            rejected.append(why)
+
+    h, w = blurred.shape[:2]
+    refined = _refine_sides(quad, blurred, valid, radii=(first_radius, 1.5), first=first)
+    if refined is None:
+        return reject("a side's edge could not be traced along it")
+    corners, lines = refined
+    # a marker is read by its pattern, not cut out by the border: it only has to lie in the image
+    marker = all(references.kind(k).detector == "marker" for k in kinds)
+    if not _inside(corners, h, w, margin=0.0 if marker else BORDER_MARGIN_PX):
+        return reject("a corner lies on or beyond the edge of the photo")
+    if min(np.linalg.norm(np.roll(corners, -1, axis=0) - corners, axis=1)) < MIN_SIDE_PX:
+        return reject("it is too small in the photo")
+    supports = np.array([ln.support for ln in lines])
+    coverage = np.array([ln.coverage for ln in lines])
+    residuals = np.array([ln.residual_sd for ln in lines])
+    min_side_support = COMPLETED_MIN_SIDE_SUPPORT if completed else MIN_SIDE_SUPPORT
+    if supports.min() < min_side_support or supports.mean() < MIN_MEAN_SUPPORT:
+        return reject(f"a side's edge is missing along {100 * (1 - supports.min()):.0f} % of the side where it is seen")
+    if coverage.min() < _LOOSEST_COVERAGE[0] or coverage.mean() < _LOOSEST_COVERAGE[1]:
+        return reject(f"its sides show along only {100 * coverage.mean():.0f} % of their length (covered)")
+    if _curved(residuals, np.linalg.norm(np.roll(corners, -1, axis=0) - corners, axis=1)):
+        return reject(f"a side is not straight (scatter {residuals.max():.1f} px: curled, or a curved outline over it)")
+    shape = _parallelogram(corners, K)
+    if shape is None:
+        return reject("its corners are no rectangle's image")
+    perturbed = _perturbed_corners(lines)
+    ratio_sd, angle_sd = _shape_sd(corners, perturbed, K)
+    # small or oblique objects measure their shape less well: the tolerances widen with the corners' noise
+    tol_ratio = min(max(ASPECT_TOLERANCE, 3.0 * ratio_sd), MAX_ASPECT_TOLERANCE)
+    tol_angle = min(max(ANGLE_TOLERANCE_DEG, 3.0 * angle_sd), MAX_ANGLE_TOLERANCE_DEG)
+    if marker:
+        kind, start = kinds[0], 0
+        if abs(math.log(shape[0] / references.kind(kind).aspect)) > tol_ratio or abs(shape[1] - 90.0) > tol_angle:
+            return reject("its shape is not square")
+    else:
+        # named among every rectangle kind, so that a sheet asked for as a card is not one
+        found = _classify(corners, K, RECTANGLES, tol_ratio=tol_ratio, tol_angle=tol_angle)
+        if found is None or found[0] not in kinds:
+            ratio, angle = max(shape[0], 1.0 / shape[0]), shape[1]
+            aspects = ", ".join(f"{references.kind(k).described} {references.kind(k).aspect:.3f}" for k in RECTANGLES)
+            return reject(
+                f"its shape is no reference object's (side ratio {ratio:.3f}; {aspects}; corner angle "
+                f"{angle:.1f} deg; the photo's focal length may be wrong)"
+            )
+        kind, start = found
+    sheet = kind in SHEETS
+    if coverage.min() < MIN_COVERAGE[kind][0] or coverage.mean() < MIN_COVERAGE[kind][1]:
+        return reject(f"its sides show along only {100 * coverage.mean():.0f} % of their length (covered)")
+    if start:
+        corners = np.roll(corners, -start, axis=0)
+        lines = lines[start:] + lines[:start]
+        perturbed = [np.roll(c, -start, axis=0) for c in perturbed]
+    if sheet and not _is_paper(corners, lines):
+        return reject("it is not white paper brighter than the floor")
+    if sheet and valid is not None and not _blank_inside(corners, lines, valid, blurred):
+        return reject("it is not blank inside (a pattern or an object on it: tiles, not a sheet)")
+    if sheet:
+        strange, outside = _strange_borders(corners, lines)
+        # a completed sheet's fourth side runs where the foot hides it (its colours are the foot's), not beside it
+        if outside or len(strange) > (1 if completed else 0):
+            side = (outside or strange)[-1] + 1
+            return reject(f"its side {side} of 4 does not part the paper from the floor (clothing over it?)")
+    if _continues(blurred, corners, lines, valid):
+        return reject("its sides run on past its corners (tiles, planks or a printed grid)")
+    at_corner = [(j, ln) for i, ln in enumerate(lines) for j in (i, (i + 1) % 4)]  # each corner's two lines
+    if sheet:
+        corners, lines, perturbed, coverage = _clean_sides(corners, lines, blurred, perturbed)
+    if sheet and (bowed := _bowed_corners(corners, lines, blurred)) is not None:
+        local_perturbed = _perturbed_corner_pairs(bowed)
+        local = _corners_of(bowed)
+        local_sd = _shape_sd(local, local_perturbed, K)
+        tol_ratio = min(max(ASPECT_TOLERANCE, 3.0 * local_sd[0]), MAX_ASPECT_TOLERANCE)
+        tol_angle = min(max(ANGLE_TOLERANCE_DEG, 3.0 * local_sd[1]), MAX_ANGLE_TOLERANCE_DEG)
+        if _classify(local, K, RECTANGLES, tol_ratio=tol_ratio, tol_angle=tol_angle) == (kind, 0):
+            corners, perturbed = local, local_perturbed
+            at_corner = [(j, ln) for j, pair in enumerate(bowed) for ln in pair]
+    solved = rectangle_pose(corners, kind, K)
+    if solved is None:
+        return reject("no pose of the object fits its corners")
+    pose, reproj = solved
+    length, width = SIZES_MM[kind]
+    distance = float(np.linalg.norm(pose[:3, :3] @ [length / 2, width / 2, 0.0] + pose[:3, 3]))
+    if not DISTANCE_RANGE_MM[0] <= distance <= DISTANCE_RANGE_MM[1]:
+        return reject(f"it would lie {distance / 1000:.2f} m from the camera")
+    fit_sd = math.sqrt(sum((_distance(c, kind, K) - distance) ** 2 for c in perturbed)) / distance
+    if not fit_sd <= MAX_SCALE_REL_SD:
+        return reject(f"its corners fix the scale only to {100 * fit_sd:.1f} %")
+    # a corner's SD: the two lines' offsets there (the line's offset SD at its centroid plus the angle's lever)
+    corner_var = [
+        ln.offset_sd**2 + (ln.angle_sd * float(np.linalg.norm(corners[j] - ln.point))) ** 2 for j, ln in at_corner
+    ]
+    obj = ReferenceObject(
+        kind=kind,
+        corners_px=corners,
+        size_mm=(length, width),
+        cam_from_floor=pose,
+        reprojection_px=reproj,
+        corner_sd_px=float(np.sqrt(2.0 * np.mean(corner_var))),
+        fit_rel_sd=fit_sd,
+        scale_rel_sd=math.sqrt(fit_sd**2 + SIZE_REL_SD[kind] ** 2),
+        mirrored=mirrored,
+    )
+    # among candidates of one kind: the best-supported (a sheet: along its paper-to-floor edges), most precise,
+    # then the larger (a sheet, not part of it)
+    # and of the quads of one object, the one most like its shape
+    final = _parallelogram(corners, K)
+    ratio_misfit = abs(math.log(max(final[0], 1.0 / final[0]) * width / length)) / tol_ratio
+    shape_misfit = ratio_misfit + abs(final[1] - 90.0) / tol_angle
+    score = float(supports.mean() + coverage.mean()) - SHAPE_WEIGHT * shape_misfit - 10.0 * fit_sd
+    score += 1e-6 * abs(_signed_area(corners))
+    return score, obj

@@ -1,0 +1,153 @@
+"""Steps 1-8 in order: ``search_reference`` and ``detect_reference``."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from footmesh import references
+from footmesh.cues.reference.finish import _finish
+from footmesh.cues.reference.marker import _detect_marker, _overlaps
+from footmesh.cues.reference.objects import ReferenceObject, ReferenceSearch
+from footmesh.cues.reference.params import _KERNEL5, BLUR_SIGMA_PX, KINDS, MARKER_SHEET_SCALE, RECTANGLES, SHEETS
+from footmesh.cues.reference.quads import _candidate_groups, _canonical, _check_image, _check_intrinsics, _signed_area
+from footmesh.cues.reference.sides import _blank_inside, _fit_sides, _paper_beside
+
+
+def detect_reference(
+    rgb: np.ndarray,
+    K: np.ndarray,
+    kinds: tuple[str, ...] | list[str] = KINDS,
+    exclude_mask: np.ndarray | None = None,
+) -> ReferenceObject | None:
+    """Find a reference object lying on the floor and the floor plane it gives; None when none is convincing
+    (``search_reference``'s ``found``)."""
+    return search_reference(rgb, K, kinds, exclude_mask).found
+
+
+def search_reference(
+    rgb: np.ndarray,
+    K: np.ndarray,
+    kinds: tuple[str, ...] | list[str] = KINDS,
+    exclude_mask: np.ndarray | None = None,
+) -> ReferenceSearch:
+    """Find a reference object lying on the floor and the floor plane it gives, or say why none was taken.
+
+    Args:
+        rgb: (H, W, 3) uint8, or float in 0..1, RGB image.
+        K: (3, 3) intrinsics in pixels of this image.
+        kinds: which objects to look for (any of ``KINDS``); when several are found the marker wins, then the
+            A4 sheet, then the card, whatever the order given.
+        exclude_mask: optional (H, W) bool, pixels not to take edges from (e.g. the foot and leg): an edge there
+            neither supports nor contradicts a side.
+
+    Returns:
+        ``ReferenceSearch``: the ``ReferenceObject`` (None: the caller reports the result as unscaled) and, when
+        none was found, the reason the largest candidate was rejected.
+    """
+    image = _check_image(rgb)
+    K = _check_intrinsics(K)
+    kinds = tuple(kinds)
+    unknown = [k for k in kinds if k not in KINDS]
+    if unknown or not kinds:
+        raise ValueError(f"kinds must be a non-empty selection of {KINDS}, got {kinds!r}")
+    h, w = image.shape[:2]
+    valid = None
+    if exclude_mask is not None:
+        exclude_mask = np.asarray(exclude_mask)
+        if exclude_mask.shape != (h, w):
+            raise ValueError(f"exclude_mask must be (H, W) = {(h, w)} like the image, got {exclude_mask.shape}")
+        # edges right next to the masked object are its own outline, not the reference's
+        valid = cv2.dilate(exclude_mask.astype(np.uint8), _KERNEL5) == 0
+    blurred = cv2.GaussianBlur(image, (0, 0), BLUR_SIGMA_PX)
+    found, markers = _detect_marker(image, blurred, K, valid, report=bool(references.with_detector("marker", kinds)))
+    if found is not None:
+        return ReferenceSearch(found)
+    wanted = [k for k in RECTANGLES if k in kinds]
+    if not wanted:
+        return ReferenceSearch(None)
+    # a marker's cells are rectangles too: nothing is taken from the printed sheet of any marker seen
+    sheets = [(q - q.mean(axis=0)) * MARKER_SHEET_SCALE + q.mean(axis=0) for q in markers]
+    seen: set[tuple[int, ...]] = set()  # rough quads already listed (both searches)
+    sheet_groups = _candidate_groups(blurred, K, wanted, "sheet", seen) if set(wanted) & set(SHEETS) else []
+    card_groups = _candidate_groups(blurred, K, wanted, "card", seen) if set(wanted) - set(SHEETS) else []
+    searched = _try_groups(sheet_groups, card_groups, sheets, wanted, blurred, K, valid)
+    if searched.found is not None:
+        return searched
+    if valid is not None:
+        # the mask is the silhouette network's, and on real photos it sometimes spreads over the floor and hides
+        # the sheet's sides; the sides' own tests (straight, supported, not running on) still hold without it
+        # the sides' own tests (straight, supported, not running on) still hold without it; but the foot's own
+        # lit skin is no sheet: what the mask leaves of a sheet must be paper
+        masked = exclude_mask.astype(bool)
+        again = _try_groups(sheet_groups, card_groups, sheets, wanted, blurred, K, None, masked)
+        if again.found is not None:
+            return again
+    return ReferenceSearch(None, searched.rejected, searched.rejected_area / (h * w))
+
+
+def _try_groups(
+    sheet_groups: list[list[np.ndarray]],
+    card_groups: list[list[np.ndarray]],
+    sheets: list[np.ndarray],
+    wanted: list[str],
+    blurred: np.ndarray,
+    K: np.ndarray,
+    valid: np.ndarray | None,
+    masked: np.ndarray | None = None,
+) -> ReferenceSearch:
+    """Refine and test the rough quads of ``_candidate_groups`` in turn: the A4 sheet found, else the card, else
+    (``rejected_area`` in px here) why the largest rough quad was rejected. Quads over a marker's printed sheet
+    (``sheets``) are skipped, and objects found more than ``MAX_MASKED_SHARE`` inside ``masked`` (H, W) bool."""
+    best: dict[str, tuple[float, ReferenceObject]] = {}
+    accepted: list[np.ndarray] = []  # corners already found, in canonical order
+    largest_rejected: list[tuple[float, str]] = []  # (area px, why) of the largest rough quad rejected
+
+    def try_candidates(quads: list[np.ndarray], completed: bool = False) -> None:
+        """Refine and test rough quads in turn, keeping the best-scoring object of each kind."""
+        for quad in quads:
+            # many thresholds give the same object: refine it once
+            if any(np.max(np.linalg.norm(quad - corners, axis=1)) < 3.0 for corners in accepted):
+                continue
+            if any(_overlaps(quad, sheet) for sheet in sheets):
+                continue
+            why: list[str] = []
+            result = _finish(quad, wanted, blurred, K, valid, completed=completed, rejected=why)
+            if result is None:
+                area = abs(_signed_area(quad))
+                if why and (not largest_rejected or area > largest_rejected[0][0]):
+                    largest_rejected[:] = [(area, why[0])]
+                continue
+            if masked is not None and not _paper_beside(result[1].corners_px, masked, blurred):
+                continue
+            if masked is not None and result[1].kind in SHEETS:
+                lines = _fit_sides(result[1].corners_px, blurred, None, 1.5)
+                if lines is not None and all(ln is not None for ln in lines):
+                    if not _blank_inside(result[1].corners_px, lines, ~masked, blurred):
+                        continue
+            accepted.append(_canonical(result[1].corners_px))
+            score, obj = result
+            if obj.kind not in best or score > best[obj.kind][0]:
+                best[obj.kind] = (score, obj)
+
+    # a sheet wins over any card: once one is found, the candidates left (most of the time spent on those that
+    # are none) are not tried. Sheets with a hidden corner completed come last, only when no card was found.
+    def best_of(names: list[str]) -> ReferenceObject | None:
+        found = [best[k] for k in names if k in best]
+        return max(found, key=lambda scored: scored[0])[1] if found else None
+
+    cards = [k for k in RECTANGLES if k not in SHEETS]
+    for group in sheet_groups[:1] + card_groups:
+        try_candidates(group)
+        if (sheet := best_of(SHEETS)) is not None:
+            return ReferenceSearch(sheet)
+    if (card := best_of(cards)) is not None:
+        return ReferenceSearch(card)
+    for group in sheet_groups[1:]:
+        try_candidates(group, completed=True)
+        if (sheet := best_of(SHEETS)) is not None:
+            return ReferenceSearch(sheet)
+    if not largest_rejected:
+        return ReferenceSearch(None)
+    area, why = largest_rejected[0]
+    return ReferenceSearch(None, why, area)
