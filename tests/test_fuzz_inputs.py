@@ -90,7 +90,8 @@ def test_mutated_intrinsics_and_depth_fail_with_a_load_error(tmp_path):
 
 
 def test_mutated_uploads_are_accepted_or_refused_with_a_status(tmp_path):
-    uploads = pytest.importorskip("footmesh.web.uploads")
+    from footmesh.web import uploads
+
     rng = np.random.default_rng(11)
     originals = [_image("JPEG"), _image("PNG"), _image("TIFF-pages")]
     path = tmp_path / "photo.upload"

@@ -13,15 +13,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 import trimesh
-from PIL import Image
-
-from footmesh.errors import Refusal
-
-pytest.importorskip("fastapi", reason="the web extra (fastapi, python-multipart, httpx) is not installed")
-
 from _fake_pipeline import FakeMeasure, fake_measure  # noqa: E402
 from _photos import png_bytes  # noqa: E402
 from _stub_pipeline import StubMeasure  # noqa: E402
+from PIL import Image
+
+from footmesh.errors import Refusal
 
 MEASURE = "/api/measure"
 

@@ -18,8 +18,6 @@ import numpy as np
 import pytest
 from PIL import Image
 
-pytest.importorskip("fastapi", reason="the web extra (fastapi, uvicorn, python-multipart) is not installed")
-pytest.importorskip("uvicorn", reason="the web extra (fastapi, uvicorn, python-multipart) is not installed")
 sync_api = pytest.importorskip("playwright.sync_api", reason="the playwright Python package is not installed")
 
 from _fake_pipeline import FakeMeasure  # noqa: E402

@@ -8,10 +8,7 @@ from __future__ import annotations
 import io
 
 import numpy as np
-import pytest
 import trimesh
-
-pytest.importorskip("fastapi", reason="the web extra (fastapi, python-multipart, httpx) is not installed")
 
 CONTRACT_KEYS = {"version", "input_sha256", "side", "scale_source", "measurements", "ratios", "sizes"}
 CONTRACT_KEYS |= {"joints2d_px", "joints3d_mm", "angles", "files", "messages"}

@@ -9,10 +9,6 @@ import urllib.request
 from urllib.parse import urlsplit
 
 import pytest
-
-pytest.importorskip("fastapi", reason="the web extra (fastapi, uvicorn, python-multipart) is not installed")
-pytest.importorskip("uvicorn", reason="the web extra (fastapi, uvicorn, python-multipart) is not installed")
-
 from _fake_pipeline import FakeMeasure  # noqa: E402
 from _photos import png_bytes  # noqa: E402
 
@@ -170,6 +166,43 @@ def test_an_upload_that_stalls_gets_408(tmp_path):
         assert _health_seconds(url) < 2.0
     with pytest.raises(ValueError, match="upload_idle_timeout_s"):
         WebSettings(upload_idle_timeout_s=0)
+
+
+def test_an_upload_that_trickles_below_the_minimum_rate_gets_408(tmp_path):
+    """Never idle for the idle time-out, yet far below the minimum rate: cut off once the grace is over."""
+    settings = WebSettings(
+        isolation="thread",
+        work_dir=tmp_path,
+        upload_idle_timeout_s=5.0,
+        upload_min_rate_bytes_s=2000.0,
+        upload_rate_grace_s=0.5,
+    )
+    with running_server(FakeMeasure(), settings) as url:
+        parts = urlsplit(url)
+        with socket.create_connection((parts.hostname, parts.port), timeout=5.0) as sock:
+            sock.sendall(
+                b"POST /api/measure HTTP/1.1\r\nHost: 127.0.0.1\r\n"
+                b"Content-Type: multipart/form-data; boundary=b\r\nContent-Length: 100000\r\n\r\n--b\r\n"
+            )
+            start = time.monotonic()
+            sock.settimeout(0.2)
+            answer = b""
+            while time.monotonic() - start < 4.0:  # 10 bytes every 0.2 s: 50 bytes/s
+                try:
+                    sock.sendall(b"x" * 10)
+                    chunk = sock.recv(4096)
+                except TimeoutError:
+                    continue
+                except OSError:
+                    break
+                if not chunk:
+                    break
+                answer += chunk
+        assert answer.startswith(b"HTTP/1.1 408"), answer[:80]
+        assert b"too slow" in answer and time.monotonic() - start < 3.0
+        assert _health_seconds(url) < 2.0
+    with pytest.raises(ValueError, match="upload_min_rate_bytes_s"):
+        WebSettings(upload_min_rate_bytes_s=0)
 
 
 def test_a_job_whose_client_left_while_it_queued_never_runs(tmp_path):

@@ -46,9 +46,9 @@ _MIRROR = (1.0, -1.0, 1.0)  # y -> -y turns the left model into a right foot (la
 _ROT, _TRANS, _LOG_SCALE, _ANGLES = slice(0, 3), slice(3, 6), 6, slice(7, 7 + sk.NUM_DOFS)
 _SHAPE_START = 7 + sk.NUM_DOFS
 
-_DOF_JOINT = torch.tensor([d.joint for d in sk.DOFS])
+_DOF_JOINT = lbs.DOF_JOINT
 _DOF_PARENT = torch.tensor([sk.PARENTS[d.joint] for d in sk.DOFS])
-_DOF_IS_Z = torch.tensor([d.axis == "z" for d in sk.DOFS])
+_DOF_IS_Z = lbs.DOF_IS_Z
 
 
 def _subtree_matrix() -> torch.Tensor:

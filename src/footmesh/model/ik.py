@@ -53,9 +53,9 @@ for _chain in sk.BRANCHES:
 _BRANCH_DOF_INDEX = torch.tensor(_BRANCH_DOFS)  # (6, 4)
 _BRANCH_DOF_MASK = torch.tensor([[i < sum(d.joint in c for d in sk.DOFS) for i in range(4)] for c in sk.BRANCHES])
 _TIPS = torch.tensor(sk.TIP_JOINTS)
-_DOF_JOINT = torch.tensor([d.joint for d in sk.DOFS])
+_DOF_JOINT = lbs.DOF_JOINT
 _DOF_PARENT = torch.tensor([sk.PARENTS[d.joint] for d in sk.DOFS])
-_DOF_IS_Z = torch.tensor([d.axis == "z" for d in sk.DOFS])
+_DOF_IS_Z = lbs.DOF_IS_Z
 _METATARSAL_DOFS = [_Y_DOF[proximal] for proximal, _, _ in sk.TOE_BRANCHES]
 
 

@@ -6,13 +6,16 @@ angles in radians, foot frame (see ``skeleton`` and docs/conventions.md).
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import torch
 
 from footmesh.model import skeleton as sk
 
-_PARENTS = sk.PARENTS
-_DOF_JOINT = torch.tensor([d.joint for d in sk.DOFS])
-_DOF_IS_Z = torch.tensor([d.axis == "z" for d in sk.DOFS])
+DOF_JOINT = torch.tensor([d.joint for d in sk.DOFS])
+"""(D,) the joint each rotational DOF turns (``skeleton.DOFS``)."""
+DOF_IS_Z = torch.tensor([d.axis == "z" for d in sk.DOFS])
+"""(D,) True for a DOF about the segment's z axis, False for one about y."""
 
 
 def blend_shapes(shape: torch.Tensor, mean: torch.Tensor, components: torch.Tensor, sd: torch.Tensor) -> torch.Tensor:
@@ -43,19 +46,26 @@ def rot_z(angle: torch.Tensor) -> torch.Tensor:
     return torch.stack([c, -s, z, s, c, z, z, z, o], dim=-1).reshape(*angle.shape, 3, 3)
 
 
-def local_rotations(angles: torch.Tensor) -> torch.Tensor:
+def local_rotations(
+    angles: torch.Tensor,
+    dof_joint: torch.Tensor = DOF_JOINT,
+    dof_is_z: torch.Tensor = DOF_IS_Z,
+    num_joints: int = sk.NUM_JOINTS,
+) -> torch.Tensor:
     """Rotation of each segment relative to its parent, ``R = R_y(angle_y) @ R_z(angle_z)``.
 
     Args:
         angles: (B, D) radians, ``skeleton.DOF_NAMES`` order.
+        dof_joint, dof_is_z: (D,) the skeleton's DOFs: the joint each turns and whether about z (default: the
+            foot's, ``skeleton.DOFS``). num_joints: J.
     Returns:
         (B, J, 3, 3); identity for the root.
     """
     b = angles.shape[0]
-    angle_y = angles.new_zeros(b, sk.NUM_JOINTS)
-    angle_z = angles.new_zeros(b, sk.NUM_JOINTS)
-    dof_joint = _DOF_JOINT.to(angles.device)
-    is_z = _DOF_IS_Z.to(angles.device)
+    angle_y = angles.new_zeros(b, num_joints)
+    angle_z = angles.new_zeros(b, num_joints)
+    dof_joint = dof_joint.to(angles.device)
+    is_z = dof_is_z.to(angles.device)
     angle_y = angle_y.index_add(1, dof_joint[~is_z], angles[:, ~is_z])
     angle_z = angle_z.index_add(1, dof_joint[is_z], angles[:, is_z])
     cy, sy = torch.cos(angle_y), torch.sin(angle_y)
@@ -63,10 +73,12 @@ def local_rotations(angles: torch.Tensor) -> torch.Tensor:
     zero = torch.zeros_like(cy)
     # R_y(y) @ R_z(z) written out: one stack instead of two matrices and a batched matmul.
     rows = [cy * cz, -cy * sz, sy, sz, cz, zero, -sy * cz, sy * sz, cy]
-    return torch.stack(rows, dim=-1).reshape(b, sk.NUM_JOINTS, 3, 3)
+    return torch.stack(rows, dim=-1).reshape(b, num_joints, 3, 3)
 
 
-def forward_kinematics(angles: torch.Tensor, rest_joints: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+def forward_kinematics(
+    angles: torch.Tensor, rest_joints: torch.Tensor, parents: Sequence[int] = sk.PARENTS
+) -> tuple[torch.Tensor, torch.Tensor]:
     """Forward kinematics of all six branches at once.
 
     Each segment ``p -> c`` turns by its local rotation about the parent joint ``p`` (thesis 3.5.2).
@@ -74,6 +86,7 @@ def forward_kinematics(angles: torch.Tensor, rest_joints: torch.Tensor) -> tuple
     Args:
         angles: (B, D) radians.
         rest_joints: (B, J, 3) or (J, 3) mm, joint positions in the zero pose.
+        parents: (J,) each joint's parent, -1 for the root, parents before children (default: the foot's tree).
     Returns:
         posed_joints: (B, J, 3) mm.
         transforms: (B, J, 3, 4) rigid transform of each segment (column j moves the segment ending at
@@ -82,13 +95,13 @@ def forward_kinematics(angles: torch.Tensor, rest_joints: torch.Tensor) -> tuple
     b = angles.shape[0]
     if rest_joints.dim() == 2:
         rest_joints = rest_joints.unsqueeze(0).expand(b, -1, -1)
-    local = local_rotations(angles)
+    local = local_rotations(angles, num_joints=len(parents))
     eye = torch.eye(3, dtype=angles.dtype, device=angles.device).expand(b, 3, 3)
     rotations = [eye]
     translations = [angles.new_zeros(b, 3)]
     # The tree is 18 joints deep at most 4: a Python loop over joints is cheaper than any gather trick.
-    for c in range(1, sk.NUM_JOINTS):
-        p = _PARENTS[c]
+    for c in range(1, len(parents)):
+        p = parents[c]
         rot_p, t_p = rotations[p], translations[p]
         pivot = rest_joints[:, p]
         rot_c = rot_p @ local[:, c]

@@ -131,6 +131,8 @@ def create_app(measure: MeasureFn | None = None, settings: WebSettings | None = 
         max_bytes=settings.max_upload_bytes,
         paths=(MEASURE_PATH,),
         idle_timeout_s=settings.upload_idle_timeout_s,
+        min_rate_bytes_s=settings.upload_min_rate_bytes_s,
+        rate_grace_s=settings.upload_rate_grace_s,
     )
     app.add_middleware(HostGuard, allowed_hosts=settings.allowed_hosts)
     app.add_middleware(SecurityHeaders)
@@ -336,18 +338,28 @@ class _Stalled(Exception):
 
 class BodyLimit:
     """ASGI middleware: refuse request bodies over ``max_bytes`` on ``paths`` with 413, counting as they arrive,
-    with 408 when the body stops arriving for ``idle_timeout_s``, and with 503 before reading any when the job
-    queue is full.
+    with 408 when the body stops arriving for ``idle_timeout_s`` or, after ``rate_grace_s``, arrives slower than
+    ``min_rate_bytes_s`` on average, and with 503 before reading any when the job queue is full.
 
     A declared Content-Length over the limit is refused before anything is read; a body that turns out larger
     (chunked, or a lying header) stops being read at the limit and the app's answer is replaced by the 413.
     """
 
-    def __init__(self, app: ASGIApp, max_bytes: int, paths: tuple[str, ...], idle_timeout_s: float = 30.0) -> None:
+    def __init__(
+        self,
+        app: ASGIApp,
+        max_bytes: int,
+        paths: tuple[str, ...],
+        idle_timeout_s: float = 30.0,
+        min_rate_bytes_s: float = 1024.0,
+        rate_grace_s: float = 10.0,
+    ) -> None:
         self.app = app
         self.max_bytes = max_bytes
         self.paths = paths
         self.idle_timeout_s = idle_timeout_s
+        self.min_rate_bytes_s = min_rate_bytes_s
+        self.rate_grace_s = rate_grace_s
 
     async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
         if scope["type"] != "http" or scope["path"] not in self.paths:
@@ -363,18 +375,31 @@ class BodyLimit:
             await _plain_error(send, 503, detail, [(b"retry-after", str(RETRY_AFTER_S).encode())])
             return
         received = 0
-        exceeded = stalled = False
+        exceeded = False
+        stalled: str | None = None  # why the body was given up on
         started = False
         body_done = False
+        loop = asyncio.get_running_loop()
+        opened = loop.time()
 
         async def limited_receive() -> Message:
             nonlocal received, exceeded, stalled, body_done
             if body_done:  # only the disconnect is left to wait for, as long as it takes
                 return await receive()
+            # the next chunk must come before the body falls below the minimum average rate (after the grace)
+            behind = opened + self.rate_grace_s + received / self.min_rate_bytes_s - loop.time()
+            wait = min(self.idle_timeout_s, max(behind, 0.0))
             try:
-                message = await asyncio.wait_for(receive(), self.idle_timeout_s)
+                message = await asyncio.wait_for(receive(), wait)
             except TimeoutError:
-                stalled = True
+                if wait < self.idle_timeout_s:
+                    rate = received / max(loop.time() - opened, 1e-9)
+                    stalled = (
+                        f"the upload is too slow ({rate:.0f} bytes/s on average; at least "
+                        f"{self.min_rate_bytes_s:.0f} bytes/s are needed)"
+                    )
+                else:
+                    stalled = f"the upload stalled (nothing arrived for {self.idle_timeout_s:g} s)"
                 raise _Stalled from None
             if message["type"] == "http.request":
                 received += len(message.get("body", b""))
@@ -386,7 +411,7 @@ class BodyLimit:
 
         async def guarded_send(message: Message) -> None:
             nonlocal started
-            if exceeded or stalled:
+            if exceeded or stalled is not None:
                 return  # whatever the app makes of the broken body, the answer is 413 / 408
             started = started or message["type"] == "http.response.start"
             await send(message)
@@ -397,9 +422,8 @@ class BodyLimit:
             pass
         if exceeded and not started:
             await self._refuse(send)
-        elif stalled and not started:
-            detail = f"the upload stalled (nothing arrived for {self.idle_timeout_s:g} s)"
-            await _plain_error(send, 408, detail, [(b"connection", b"close")])
+        elif stalled is not None and not started:
+            await _plain_error(send, 408, stalled, [(b"connection", b"close")])
 
     async def _refuse(self, send: Send) -> None:
         detail = f"the upload is larger than the limit of {uploads.format_bytes(self.max_bytes)}"

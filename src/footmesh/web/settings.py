@@ -37,6 +37,10 @@ class WebSettings:
         upload_idle_timeout_s: longest pause while a request's body arrives; longer -> 408 and the connection
             closed (a body sent a byte at a time holds a connection; the headers have their own time-out, see
             ``footmesh.web.server``).
+        upload_min_rate_bytes_s: after ``upload_rate_grace_s``, a request's body must have arrived at least this
+            fast on average, else 408 and the connection closed (a body trickling in just faster than the idle
+            time-out would otherwise hold a connection and its memory for hours: 30 MB at one byte per 29 s).
+            1 KiB/s is 50 times slower than a phone's worst mobile upload.
         allowed_hosts: the names this server answers to in the ``Host`` header (others get 400: a web page
             elsewhere cannot reach it by DNS rebinding); a form post whose ``Origin`` is another host gets 403
             (cross-site request forgery). ``"*"`` answers any host.
@@ -55,6 +59,8 @@ class WebSettings:
     work_dir: Path | None = None
     preload: tuple[str, ...] = ("footmesh.model.layer", "footmesh.measure", "footmesh.report", "trimesh", "PIL.Image")
     upload_idle_timeout_s: float = 30.0
+    upload_min_rate_bytes_s: float = 1024.0
+    upload_rate_grace_s: float = 10.0
     allowed_hosts: tuple[str, ...] = LOCAL_HOSTS
 
     def __post_init__(self) -> None:
@@ -68,6 +74,8 @@ class WebSettings:
             "result_ttl_s": self.result_ttl_s,
             "max_results": self.max_results,
             "upload_idle_timeout_s": self.upload_idle_timeout_s,
+            "upload_min_rate_bytes_s": self.upload_min_rate_bytes_s,
+            "upload_rate_grace_s": self.upload_rate_grace_s,
         }
         for name, value in positive.items():
             if not value > 0:
