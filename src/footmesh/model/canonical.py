@@ -18,6 +18,7 @@ from dataclasses import dataclass
 import torch
 from torch.func import jacfwd, vmap
 
+from footmesh import optim
 from footmesh.geometry.alignment import weighted_procrustes
 from footmesh.geometry.rotations import skew
 from footmesh.model import ik, lbs
@@ -297,6 +298,10 @@ def canonicalise(
     params[:, _ANGLES] = angles0
     lower = data.new_tensor(sk.DOF_LOWER)
     upper = data.new_tensor(sk.DOF_UPPER)
+    # the box of every parameter: only the angles have limits
+    box_lower = torch.full_like(params[0], -torch.inf)
+    box_upper = torch.full_like(params[0], torch.inf)
+    box_lower[_ANGLES], box_upper[_ANGLES] = lower, upper
 
     # (b) projected Levenberg-Marquardt, per item
     damping = data.new_full((b,), _LM_INITIAL_DAMPING)
@@ -306,18 +311,9 @@ def canonicalise(
         if bool((cost <= _CONVERGED_MM**2 * res.shape[-1]).all()):
             break
         res, jac = problem.batch_jacobian(params, rot0, data, data_joints)  # (B, N), (B, N, P)
-        grad = -(jac.transpose(1, 2) @ res.unsqueeze(-1)).squeeze(-1)  # descent direction (B, P)
-        angle = params[:, _ANGLES]
-        held = torch.zeros_like(params, dtype=torch.bool)
-        held[:, _ANGLES] = ((angle <= lower) & (grad[:, _ANGLES] < 0)) | ((angle >= upper) & (grad[:, _ANGLES] > 0))
-        free = (~held).to(f64)
-        jac = jac * free.unsqueeze(1)
-        grad = grad * free
-        jtj = jac.transpose(1, 2) @ jac  # (B, P, P)
-        diag = torch.diagonal(jtj, dim1=1, dim2=2)
-        scale = diag + 1e-9 * diag.mean(-1, keepdim=True) + 1e-12
-        system = jtj + torch.diag_embed(damping.unsqueeze(-1) * scale + held.to(f64))
-        step = torch.linalg.solve(system, grad.unsqueeze(-1)).squeeze(-1) * free
+        descent = -(jac.transpose(1, 2) @ res.unsqueeze(-1)).squeeze(-1)  # (B, P)
+        held = optim.held_at_bounds(params, descent, box_lower, box_upper)
+        step = optim.damped_step(jac, descent, damping, held, floor=1e-9)
         trial = params + step
         trial[:, _ROT] = 0.0
         trial[:, _ANGLES] = torch.minimum(torch.maximum(trial[:, _ANGLES], lower), upper)
@@ -328,8 +324,7 @@ def canonicalise(
         params = torch.where(better.unsqueeze(-1), trial, params)
         rot0 = torch.where(better.reshape(-1, 1, 1), trial_rot0, rot0)
         cost = torch.where(better, trial_cost, cost)
-        damping = torch.where(better, damping * _LM_DAMPING_DOWN, damping * _LM_DAMPING_UP)
-        damping = damping.clamp(*_LM_DAMPING_RANGE)
+        damping = optim.next_damping(damping, better, _LM_DAMPING_DOWN, _LM_DAMPING_UP, _LM_DAMPING_RANGE)
         if bool((stalled & (damping < _STALL_DAMPING)).all()):  # converged: only tiny improvements left
             break
 

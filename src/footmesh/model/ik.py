@@ -24,6 +24,7 @@ import math
 import numpy as np
 import torch
 
+from footmesh import optim
 from footmesh.model import lbs
 from footmesh.model import skeleton as sk
 
@@ -332,24 +333,16 @@ def _lm_step(
     """One projected Levenberg-Marquardt step of every branch; shapes as in ``solve_branch_ik``."""
     err = targets - posed[:, _TIPS.to(targets.device)]  # (B, 6, 3)
     jac = _tip_jacobian(posed, transforms[..., :3])  # (B, 6, 3, 4)
-    grad = (jac.transpose(-1, -2) @ err.unsqueeze(-1)).squeeze(-1)  # descent direction, (B, 6, 4)
+    descent = (jac.transpose(-1, -2) @ err.unsqueeze(-1)).squeeze(-1)  # (B, 6, 4)
     x = _branch_angles(angles)
-    mask = _BRANCH_DOF_MASK.to(targets.device)
-    # Projection: a DOF on a bound that the gradient pushes outwards is held for this step.
-    held = ((x <= lower) & (grad < 0)) | ((x >= upper) & (grad > 0)) | ~mask
-    free = (~held).to(jac.dtype)
-    jac = jac * free.unsqueeze(-2)
-    grad = grad * free
-    jtj = jac.transpose(-1, -2) @ jac  # (B, 6, 4, 4)
-    diag = torch.diagonal(jtj, dim1=-2, dim2=-1)
-    scale = diag + 1e-6 * diag.sum(-1, keepdim=True) + 1e-12  # Marquardt's scaling, kept invertible
-    eye = torch.eye(_BRANCH_WIDTH, dtype=jac.dtype, device=jac.device)
-    system = jtj + (damping.unsqueeze(-1) * scale).unsqueeze(-1) * eye + held.to(jac.dtype).diag_embed()
-    step = torch.linalg.solve(system, grad.unsqueeze(-1)).squeeze(-1)
-    trial = _scatter_branch_angles(torch.minimum(torch.maximum(x + step * free, lower), upper))
+    # a branch's padding DOFs (fewer than 4) are held like DOFs on a bound
+    held = optim.held_at_bounds(x, descent, lower, upper) | ~_BRANCH_DOF_MASK.to(targets.device)
+    # Marquardt's scale floor: 1e-6 of the sum of the branch's 4 diagonal entries
+    step = optim.damped_step(jac, descent, damping, held, floor=1e-6 * _BRANCH_WIDTH)
+    trial = _scatter_branch_angles(torch.minimum(torch.maximum(x + step, lower), upper))
     new = _keep_better(angles, posed, transforms, cost, trial, rest, targets)
     better = new[3] < cost
-    damping = torch.where(better, damping * _LM_DAMPING_DOWN, damping * _LM_DAMPING_UP).clamp(*_LM_DAMPING_RANGE)
+    damping = optim.next_damping(damping, better, _LM_DAMPING_DOWN, _LM_DAMPING_UP, _LM_DAMPING_RANGE)
     return (*new, damping)
 
 
