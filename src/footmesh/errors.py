@@ -44,8 +44,9 @@ class Refusal(FootmeshError, ValueError):
         return (type(self), (self.why, self.retake))
 
 
-class InternalError(FootmeshError):
-    """A fault of footmesh itself (a stage broke its contract); reported as internal, never as the user's."""
+class InternalError(FootmeshError, RuntimeError):
+    """A fault of footmesh itself that it detects (a NaN about to be written, a result of the wrong type);
+    reported as internal, never as the user's. Any exception not listed above is treated the same."""
 
 
 def is_users_fault(exc: BaseException) -> bool:

@@ -27,14 +27,15 @@ from footmesh.cues import Cues
 from footmesh.cues.predict import average_cues, predict_cues
 from footmesh.cues.refine import height_image, refine_silhouette
 from footmesh.errors import InputError, Refusal
-from footmesh.geometry.camera import crop_intrinsics, rescale_pixels, resize_intrinsics
+from footmesh.geometry.camera import crop_intrinsics, pixel_rays, rescale_pixels, resize_intrinsics
 from footmesh.load import Photo, load_photo
-from footmesh.measure import MEASUREMENT_NAMES, FootLandmarks, Measurements, measure_foot
+from footmesh.measure import FootLandmarks, measure_foot
 from footmesh.model import skeleton as sk
 from footmesh.model.layer import default_model
 from footmesh.report import request_options
 from footmesh.result import FootEntry, MeasureResult
 from footmesh.sizes import shoe_sizes
+from footmesh.uncertainty import measurement_uncertainty
 
 log = logging.getLogger("footmesh.pipeline")
 
@@ -301,7 +302,7 @@ class _Files:
 
 
 def run_pipeline(photo: Photo, side: str, config: MeasureConfig, input: str = "auto") -> tuple[MeasureResult, _Files]:
-    """Everything after loading: the result dict and the arrays of the files to write.
+    """Everything after loading: the typed result (``MeasureResult``) and the arrays of the files to write.
 
     Each foot found is measured (two when both are in view, ``locate_feet``); the result's own keys are the foot
     asked for with ``side``, else the one measured best, and ``feet`` lists every foot.
@@ -367,7 +368,7 @@ def floor_end_on_bound(mask: np.ndarray, K: np.ndarray, cam_from_floor: np.ndarr
     """The largest |cos| between the line of sight to the silhouette's centre and any direction in the floor
     plane: how end-on a foot lying on this floor can be seen at most (0 looking straight down, 1 along it)."""
     ys, xs = np.nonzero(mask)
-    ray = np.linalg.solve(K, np.array([xs.mean(), ys.mean(), 1.0]))
+    ray = pixel_rays(np.array([xs.mean(), ys.mean()]), K)
     ray /= np.linalg.norm(ray)
     normal = cam_from_floor[:3, 2]
     return math.sqrt(max(0.0, 1.0 - float(ray @ normal) ** 2))
@@ -593,37 +594,6 @@ def _reference_dict(reference, to_photo: float) -> dict:
         "size_mm": list(reference.size_mm),
         "scale_rel_sd": float(reference.scale_rel_sd),
     }
-
-
-def measurement_uncertainty(fit, measured: Measurements, scale_source: str, reference, model, config) -> dict:
-    """One-SD uncertainty (mm) of each measurement: the fit's shape covariance propagated through the
-    measurements (central differences along its principal axes, ``FootFit.shape_sigma_points``), times the
-    calibration factor of the scale source (``MeasureConfig``), and the reference object's scale uncertainty."""
-    points = fit.shape_sigma_points()  # (2, K, K)
-    faces = model.faces(fit.side).numpy()
-    with torch.no_grad():
-        out = model(torch.as_tensor(points.reshape(-1, points.shape[-1]), dtype=torch.float32), side=fit.side)
-    values = np.full((points.shape[0] * points.shape[1], len(MEASUREMENT_NAMES)), np.nan)
-    for i, (v, j) in enumerate(zip(out.vertices.double().numpy(), out.joints.double().numpy(), strict=True)):
-        try:
-            m = measure_foot(v, faces, FootLandmarks.from_joints(j), side=fit.side)
-        except ValueError:  # a shape too odd to measure: that side of the axis falls back on the other
-            continue
-        values[i] = [m.values_mm()[n] for n in MEASUREMENT_NAMES]
-    plus, minus = values.reshape(2, points.shape[1], -1)  # (K, M) each
-    centre = np.array([measured.values_mm()[n] for n in MEASUREMENT_NAMES], dtype=float)
-    one_sided = np.fmax(np.abs(plus - centre), np.abs(minus - centre))
-    half = np.where(np.isnan(plus) | np.isnan(minus), one_sided, 0.5 * np.abs(plus - minus))
-    sd = np.sqrt(np.nansum(half**2, axis=0))
-    factor = config.uncertainty_factor.get(scale_source, 1.0)
-    floor = config.uncertainty_floor_mm
-    rel = float(reference.scale_rel_sd) if reference is not None else 0.0
-    out_u = {}
-    for name, s in zip(MEASUREMENT_NAMES, sd, strict=True):
-        value = measured.values_mm()[name]
-        u = math.hypot(factor * float(s), rel * float(value), floor)
-        out_u[name] = round(u, 2)
-    return out_u
 
 
 def draw_overlay(rgb: np.ndarray, located: Located, fit, K: np.ndarray, reference) -> np.ndarray:

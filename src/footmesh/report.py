@@ -45,11 +45,13 @@ def _non_finite(data: Any, where: str = "") -> str | None:
 
 def write_json(path: str | os.PathLike, data: dict[str, Any]) -> None:
     """Write ``data`` as indented JSON. NaN is refused (missing values must be null) as a fault of the program,
-    never of the input: ``RuntimeError`` naming the key (a ``ValueError`` would be reported as bad input)."""
+    never of the input: ``errors.InternalError`` naming the key."""
+    from footmesh.errors import InternalError
+
     try:
         text = json.dumps(data, indent=2, allow_nan=False, default=_to_builtin) + "\n"
     except ValueError as exc:
-        raise RuntimeError(f"{path}: {exc} (at {_non_finite(data)})") from None
+        raise InternalError(f"{path}: {exc} (at {_non_finite(data)})") from None
     with atomic_path(path) as tmp:
         tmp.write_text(text)
 

@@ -23,6 +23,8 @@ import cv2
 import numpy as np
 from scipy import ndimage
 
+from footmesh.geometry.camera import unproject
+
 
 @dataclass(frozen=True)
 class RefineConfig:
@@ -87,7 +89,7 @@ def height_image(
     h, w = depth_mm.shape
     z = depth_mm.astype(np.float64)
     v, u = np.mgrid[0:h, 0:w]
-    points = np.stack([(u - K[0, 2]) * z / K[0, 0], (v - K[1, 2]) * z / K[1, 1], z], axis=-1)
+    points = unproject(np.stack([u, v], axis=-1), z, K)
     away = cv2.dilate(foot_mask.astype(np.uint8), _disc(max(h, w) // 32)) == 0
     floor = points[away & (z > 0)]
     if len(floor) < 500:

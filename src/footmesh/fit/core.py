@@ -71,7 +71,7 @@ from scipy.spatial.transform import Rotation
 from footmesh.cues import Cues
 from footmesh.fit import terms
 from footmesh.geometry.alignment import weighted_procrustes
-from footmesh.geometry.camera import project
+from footmesh.geometry.camera import pixel_rays, project, unproject
 from footmesh.geometry.rotations import skew
 from footmesh.model import lbs
 from footmesh.model import skeleton as sk
@@ -619,8 +619,7 @@ def _evidence(cues: Cues, K: np.ndarray, depth_mm, cam_from_floor, config: FitCo
                 keep = np.sort(rng.choice(len(rows), config.depth_samples, replace=False))
                 rows, cols = rows[keep], cols[keep]
             z = depth[rows, cols]
-            rays = np.linalg.solve(K, np.stack([cols, rows, np.ones_like(z)]).astype(np.float64)).T
-            depth_points = rays * (z / rays[:, 2])[:, None]
+            depth_points = unproject(np.stack([cols, rows], axis=-1), z, K)
             size = 2 * FREE_SPACE_WINDOW_PX + 1
             near_depth = ndimage.minimum_filter(np.where(depth > 0, depth, np.inf), size=size, mode="nearest")
             near_depth[~np.isfinite(near_depth)] = 0.0
@@ -1169,7 +1168,7 @@ def _pnp_candidates(ev: _Evidence, rest_joints: np.ndarray) -> list[tuple[np.nda
         spread = np.ptp(ev.joints[use], axis=0).max()
         length = np.ptp(rest_joints[:, 0])
         rot = np.diag([1.0, -1.0, -1.0])
-        centre = np.linalg.solve(ev.K, np.r_[ev.joints[use].mean(0), 1.0])
+        centre = pixel_rays(ev.joints[use].mean(0), ev.K)
         found.append((rot, centre * ev.K[0, 0] * length / max(spread, 1.0) - rot @ rest_joints.mean(0)))
     return found
 
@@ -1230,7 +1229,7 @@ def _initial_states(
 def _translation_for(rotation: np.ndarray, points: np.ndarray, ev: _Evidence) -> np.ndarray:
     """Translation (3,) that best projects ``rotation @ points + t`` ((18, 3) joints) onto the 2D joints: linear
     least squares of the cross product of each joint's ray with its 3D position, confidence-weighted."""
-    rays = np.linalg.solve(ev.K, np.c_[ev.joints, np.ones(len(ev.joints))].T).T
+    rays = pixel_rays(ev.joints, ev.K)
     rays /= np.linalg.norm(rays, axis=1, keepdims=True)
     w = np.sqrt(np.maximum(ev.joint_weight, PNP_MIN_CONFIDENCE))[:, None]
     # ray x (R X + t) = 0  ->  skew(ray) t = -(ray x R X)

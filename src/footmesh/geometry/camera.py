@@ -44,3 +44,16 @@ def project(points: Any, K: Any, min_depth: float | None = None) -> tuple[Any, A
     z = h[..., 2]
     divisor = z if min_depth is None else z.clip(min_depth, None)
     return h[..., :2] / divisor[..., None], z
+
+
+def pixel_rays(points_px: np.ndarray, K: np.ndarray) -> np.ndarray:
+    """Rays (..., 3) through pixels (..., 2) of a camera K (3, 3), scaled to z = 1 (camera frame)."""
+    points_px = np.asarray(points_px, dtype=np.float64)
+    homogeneous = np.concatenate([points_px, np.ones(points_px.shape[:-1] + (1,))], axis=-1)
+    rays = homogeneous @ np.linalg.inv(np.asarray(K, dtype=np.float64)).T
+    return rays / rays[..., 2:3]
+
+
+def unproject(points_px: np.ndarray, depth: np.ndarray, K: np.ndarray) -> np.ndarray:
+    """Camera-frame points (..., 3) of pixels (..., 2) at camera depths z (...,) (mm)."""
+    return pixel_rays(points_px, K) * np.asarray(depth, dtype=np.float64)[..., None]

@@ -25,7 +25,7 @@ from multiprocessing.connection import Connection
 from pathlib import Path
 from typing import Any
 
-from footmesh.errors import is_users_fault
+from footmesh.errors import InternalError, is_users_fault
 from footmesh.web.settings import WebSettings
 from footmesh.web.store import ResultStore
 
@@ -116,7 +116,7 @@ def _call(measure: MeasureFn, job: Job) -> dict:
     options = {"depth": job.depth, "depth_unit": job.depth_unit, "intrinsics": job.intrinsics, "side": job.side}
     result = measure(job.image, job.out_dir, **options)
     if not isinstance(result, dict):
-        raise TypeError(f"the measure function returned {type(result).__name__}, not a result dict")
+        raise InternalError(f"the measure function returned {type(result).__name__}, not a result dict")
     return result
 
 

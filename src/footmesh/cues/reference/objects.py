@@ -6,6 +6,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from footmesh.geometry.camera import pixel_rays
+
 
 @dataclass(frozen=True)
 class ReferenceObject:
@@ -52,7 +54,7 @@ class ReferenceObject:
     def floor_points(self, points_px: np.ndarray, K: np.ndarray) -> np.ndarray:
         """(N, 2) px -> (N, 3) mm: where the pixels' rays meet the floor, in the floor frame (z = 0); NaN if never."""
         pts = np.asarray(points_px, dtype=np.float64).reshape(-1, 2)
-        rays = np.concatenate([pts, np.ones((len(pts), 1))], axis=1) @ np.linalg.inv(K).T  # camera frame, z = 1
+        rays = pixel_rays(pts, K)  # camera frame, z = 1
         rot, trans = self.cam_from_floor[:3, :3], self.cam_from_floor[:3, 3]
         normal = rot[:, 2]
         with np.errstate(divide="ignore", invalid="ignore"):

@@ -29,7 +29,7 @@ from footmesh.cues.reference.params import (
     SHEETS,
     SIZES_MM,
 )
-from footmesh.geometry.camera import rescale_pixels
+from footmesh.geometry.camera import pixel_rays, rescale_pixels
 
 
 def _check_image(rgb: np.ndarray) -> np.ndarray:
@@ -380,7 +380,7 @@ def _parallelogram_many(quads: np.ndarray, K: np.ndarray) -> tuple[np.ndarray, n
     With rays r_i = K^-1 (u_i, v_i, 1), depths l_i with l0 r0 + l2 r2 = l1 r1 + l3 r3 (the diagonals bisect each
     other) are unique up to scale: a rectangle's image gives a right angle and its true side ratio.
     """
-    rays = np.concatenate([quads, np.ones(quads.shape[:2] + (1,))], axis=2) @ np.linalg.inv(K).T  # (M, 4, 3)
+    rays = pixel_rays(quads, K)  # (M, 4, 3), z = 1
     a = np.stack([rays[:, 1], -rays[:, 2], rays[:, 3]], axis=2)  # (M, 3, 3): columns r1, -r2, r3
     good = np.abs(np.linalg.det(a)) > 1e-12
     a[~good] = np.eye(3)
