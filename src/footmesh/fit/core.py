@@ -65,7 +65,6 @@ import cv2
 import numpy as np
 import torch
 from scipy import ndimage, sparse
-from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
 from footmesh.cues import Cues
@@ -878,97 +877,31 @@ class _SideProblem:
     # --- association ------------------------------------------------------------------------------------------
 
     def associate(self, state: _State) -> _Association:
-        """Nearest vertices, distance-transform samples and robust weights at ``state``, and its cost."""
-        ev, cfg = self.ev, self.config
+        """Every term's data association at ``state`` (``terms.TERMS``), the robust weights and the cost."""
         t = torch.from_numpy
         subset, cap = self.arrays.subset, self.arrays.cap
-        num = len(subset)
         # the whole mesh: the subset, the ankle cap (for the leg), the rim (for the contour), the lowest point (for
         # the floor)
         with torch.no_grad():
             full = self.evaluate(state, np.zeros((1, self.arrays.num_params)), self.all_ids, normals=True)
         v_all, n_all = full["vertices"][0].numpy(), full["normals"][0].numpy()
         v, n = v_all[subset], n_all[subset]
-        v_cap, n_cap = v_all[cap], n_all[cap]
-        uv_all = self.project(full["vertices"])[0].numpy()
-        uv = uv_all[subset]
-        blocks: dict[str, dict] = {}
-        # inside: vertices not hidden by the leg; those outside the silhouette carry a residual
-        value = _bilinear(ev.outside_dt, uv)
-        hidden = leg_occludes(
-            v,
-            _leg_cylinder(v_cap, n_cap, full["rotation"][0].numpy()[:, 2]),
-        )
-        idx = np.flatnonzero(~hidden & (value > 0))
-        blocks["inside"] = {
-            "index": t(idx),
-            "value": t(value[idx]),
-            "uv": t(uv[idx]),
-            "grad": t(_bilinear(ev.outside_grad, uv[idx]).T.copy()),
-            "scale": cfg.inside_count / num,
-        }
-        # contour: the nearest projected vertex of each contour sample, among the subset and the whole mesh's rim
-        # (vertices seen edge-on, whose projections lie on the outline; the subset alone sits a little inside the
-        # outline and biased the fit outwards by about 0.3 px)
+        leg = _leg_cylinder(v_all[cap], n_all[cap], full["rotation"][0].numpy()[:, 2])
         cos_view = np.abs((n_all * v_all).sum(1)) / np.maximum(
             np.linalg.norm(n_all, axis=1) * np.linalg.norm(v_all, axis=1), 1e-12
         )
-        rim = np.flatnonzero(cos_view < RIM_COS)
-        _, contour_nearest = cKDTree(np.concatenate([uv, uv_all[rim]])).query(ev.contour)
-        on_rim = contour_nearest >= num
-        rest_height = self.arrays.mean[:, 2].numpy()[np.concatenate([subset, rim])[contour_nearest]]
-        keep = rest_height < cfg.contour_max_height_mm
-        contour_points, contour_normals = ev.contour[keep], ev.contour_normal[keep]
-        contour_nearest, on_rim = contour_nearest[keep], on_rim[keep]
-        contour_extra = rim[contour_nearest[on_rim] - num]
-        extra_ids = [contour_extra]
-        if ev.depth_points is not None:
-            # depth: the nearest vertex facing the camera, point to plane
-            facing = np.flatnonzero((n * v).sum(1) < 0)
-            _, k = cKDTree(v[facing]).query(ev.depth_points)
-            nearest = facing[k]
-            normal = n[nearest] / np.linalg.norm(n[nearest], axis=1, keepdims=True)
-            blocks["depth"] = {
-                "index": t(nearest),
-                "points": t(ev.depth_points),
-                "normal": t(normal),
-                "scale": cfg.depth_count / len(ev.depth_points),
-            }
-            # free space: camera-facing vertices in front of the nearest measured depth around their pixel; read
-            # bilinearly (missing depth = 0 = no constraint) so that the cost does not jump from pixel to pixel
-            measured = _bilinear(ev.near_depth, uv)
-            limit = measured - cfg.free_space_tolerance_mm
-            valid = measured > 0
-            front = np.zeros(num, dtype=bool)
-            front[facing] = True
-            idx = np.flatnonzero(valid & front & (v[:, 2] < limit))
-            blocks["free_space"] = {
-                "index": t(idx),
-                "limit": t(limit[idx]),
-                "scale": cfg.free_space_count / max(int(valid.sum()), 1),
-            }
-        if ev.floor is not None:
-            height = v_all @ ev.floor[:3] + ev.floor[3]
-            lowest = int(np.argmin(height))
-            extra_ids.append(np.array([lowest]))
-            blocks["upright"] = {"scale": 1.0}
-        if ev.floor is None and ev.depth_points is None:
-            blocks["camera_above"] = {"scale": 1.0}
-        for name in ("joints", "distance", "shape_prior", "angle_prior"):
-            blocks[name] = {"scale": 1.0}
-        blocks["joints"]["scale"] = np.repeat(ev.joint_weight, 2)
-        extra = np.unique(np.concatenate(extra_ids))
-        position = contour_nearest.copy()
-        position[on_rim] = num + np.searchsorted(extra, contour_extra)
-        blocks["contour"] = {
-            "index": t(position),
-            "points": t(contour_points),
-            "normal": t(contour_normals),
-            "scale": cfg.contour_count / len(ev.contour),
-        }
-        if ev.floor is not None:
-            blocks["floor_contact"] = {"index": t(num + np.searchsorted(extra, [lowest])), "scale": 1.0}
-        ids = t(np.concatenate([subset, extra]))
+        frame = terms.Frame(
+            vertices=v_all,
+            normals=n_all,
+            projected=self.project(full["vertices"])[0].numpy(),
+            subset=subset,
+            hidden=leg_occludes(v, leg),
+            facing=np.flatnonzero((n * v).sum(1) < 0),
+            rim=np.flatnonzero(cos_view < RIM_COS),
+            sample=_bilinear,
+        )
+        blocks, vertex_ids = terms.associate(self, frame)
+        ids = t(vertex_ids)
         assoc = _Association(ids, blocks, {})
         out = dict(full)
         out["vertices"] = full["vertices"][:, ids]

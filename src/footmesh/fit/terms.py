@@ -1,30 +1,79 @@
-"""The fit's cost terms, one class each: its whitened residual, its robust kernel and what it says of the fit's
-quality, registered in ``TERMS`` (the order the residuals are stacked in).
+"""The fit's cost terms, one class each: its data association, its whitened residual, its robust kernel and what
+it says of the fit's quality, registered in ``TERMS`` (the order the residuals are stacked in).
 
-Adding a term = one class here and one line in ``TERMS`` (its weights in ``FitConfig``, its data association in
-``_SideProblem.associate`` when it needs model vertices matched to image evidence). A term whose block the
-association did not make this time (no depth, no floor) is left out of that iteration's cost.
+Adding a term = one class here and one line in ``TERMS`` (its weights in ``FitConfig``). At every iteration each
+term's ``associate`` matches the model (``Frame``: every vertex, its normal and projection at the current state)
+to its evidence and returns its block, or None when the photo gives it none (no depth, no floor): it is then
+left out of that iteration's cost. A term that needs vertices beyond the fit's spread subset names them in its
+block's ``extra`` and places them in ``place`` once every term's are known.
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
+from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
 import torch
+from scipy.spatial import cKDTree
 
 if TYPE_CHECKING:
     from footmesh.fit.core import FitConfig, _SideProblem
 
-Blocks = dict[str, dict[str, Any]]
-"""Per term, what the data association fixed for this iteration (indices, matched points, weights)."""
+Block = dict[str, Any]
+"""What a term's association fixed for one iteration (indices, matched points, ``scale``, later ``sqrt_weight``)."""
+Blocks = dict[str, Block]
+
+
+@dataclass(frozen=True)
+class Frame:
+    """The model at the state being associated, camera frame: every vertex (V, 3) mm, its normal (V, 3) and its
+    projection (V, 2) px; the fit's spread ``subset`` (N,) of them, which of those the leg hides (N,) bool and
+    which face the camera (subset positions); the ``rim``, vertices seen edge-on (their projections lie on the
+    outline)."""
+
+    vertices: np.ndarray
+    normals: np.ndarray
+    projected: np.ndarray
+    subset: np.ndarray
+    hidden: np.ndarray
+    facing: np.ndarray
+    rim: np.ndarray
+    sample: Callable[[np.ndarray, np.ndarray], np.ndarray]
+    """``sample(image, uv)``: an image read bilinearly at (M, 2) px."""
+
+    @property
+    def num(self) -> int:
+        return len(self.subset)
+
+    @property
+    def v(self) -> np.ndarray:
+        """(N, 3) the subset's vertices."""
+        return self.vertices[self.subset]
+
+    @property
+    def n(self) -> np.ndarray:
+        return self.normals[self.subset]
+
+    @property
+    def uv(self) -> np.ndarray:
+        return self.projected[self.subset]
 
 
 class Term:
     """A cost term: ``residual`` (B, m) whitened, summed as ``scale * rho_kernel(r)`` over its m entries."""
 
     name: ClassVar[str]
+
+    def associate(self, problem: _SideProblem, frame: Frame) -> Block | None:
+        """This iteration's block (at least its ``scale``: the term's weight), or None without evidence for it."""
+        return {"scale": 1.0}
+
+    def place(self, block: Block, position: Callable[[np.ndarray], np.ndarray]) -> None:
+        """Set the block's indices of its ``extra`` vertices: ``position(vertex ids)`` -> their places among the
+        vertices evaluated (the subset, then every term's extra ones)."""
 
     def kernel(self, config: FitConfig) -> tuple[str, float]:
         """(kind, scale) of the robust kernel: ``l2``, ``huber``, ``gm`` (Geman-McClure) or ``gm_above``."""
@@ -43,6 +92,9 @@ class Joints(Term):
     """Projected model joint - 2D joint, px, weighted by the joint's confidence (Huber)."""
 
     name = "joints"
+
+    def associate(self, problem, frame):
+        return {"scale": np.repeat(problem.ev.joint_weight, 2)}
 
     def kernel(self, config):
         return "huber", config.joint_huber
@@ -63,6 +115,18 @@ class Inside(Term):
     silhouette (those hidden by the leg skipped) (Geman-McClure)."""
 
     name = "inside"
+
+    def associate(self, problem, frame):
+        ev, t = problem.ev, torch.from_numpy
+        value = frame.sample(ev.outside_dt, frame.uv)
+        idx = np.flatnonzero(~frame.hidden & (value > 0))
+        return {
+            "index": t(idx),
+            "value": t(value[idx]),
+            "uv": t(frame.uv[idx]),
+            "grad": t(frame.sample(ev.outside_grad, frame.uv[idx]).T.copy()),
+            "scale": problem.config.inside_count / frame.num,
+        }
 
     def kernel(self, config):
         return "gm", config.silhouette_robust
@@ -86,6 +150,29 @@ class Contour(Term):
 
     name = "contour"
 
+    def associate(self, problem, frame):
+        ev, cfg, t, num = problem.ev, problem.config, torch.from_numpy, frame.num
+        # the nearest projected vertex of each contour sample, among the subset and the whole mesh's rim (the
+        # subset alone sits a little inside the outline and biased the fit outwards by about 0.3 px)
+        _, nearest = cKDTree(np.concatenate([frame.uv, frame.projected[frame.rim]])).query(ev.contour)
+        on_rim = nearest >= num
+        rest_height = problem.arrays.mean[:, 2].numpy()[np.concatenate([frame.subset, frame.rim])[nearest]]
+        keep = rest_height < cfg.contour_max_height_mm
+        nearest, on_rim = nearest[keep], on_rim[keep]
+        return {
+            "nearest": nearest,
+            "on_rim": on_rim,
+            "extra": frame.rim[nearest[on_rim] - num],
+            "points": t(ev.contour[keep]),
+            "normal": t(ev.contour_normal[keep]),
+            "scale": cfg.contour_count / len(ev.contour),
+        }
+
+    def place(self, block, position):
+        index = block["nearest"].copy()
+        index[block["on_rim"]] = position(block["extra"])
+        block["index"] = torch.from_numpy(index)
+
     def kernel(self, config):
         return "gm", config.silhouette_robust
 
@@ -104,6 +191,21 @@ class Depth(Term):
     """Back-projected depth pixels to their nearest camera-facing vertex, point to plane, mm (Geman-McClure)."""
 
     name = "depth"
+
+    def associate(self, problem, frame):
+        ev, t = problem.ev, torch.from_numpy
+        if ev.depth_points is None:
+            return None
+        # the nearest vertex facing the camera, point to plane
+        _, k = cKDTree(frame.v[frame.facing]).query(ev.depth_points)
+        nearest = frame.facing[k]
+        normal = frame.n[nearest] / np.linalg.norm(frame.n[nearest], axis=1, keepdims=True)
+        return {
+            "index": t(nearest),
+            "points": t(ev.depth_points),
+            "normal": t(normal),
+            "scale": problem.config.depth_count / len(ev.depth_points),
+        }
 
     def kernel(self, config):
         return "gm", config.depth_robust
@@ -127,6 +229,19 @@ class FreeSpace(Term):
     HUBER = 3.0
     """Huber threshold, in sigmas: a grossly misplaced start must not be dominated by this term."""
 
+    def associate(self, problem, frame):
+        ev, cfg, t = problem.ev, problem.config, torch.from_numpy
+        if ev.depth_points is None:
+            return None
+        # read bilinearly (missing depth = 0 = no constraint) so that the cost does not jump from pixel to pixel
+        measured = frame.sample(ev.near_depth, frame.uv)
+        limit = measured - cfg.free_space_tolerance_mm
+        valid = measured > 0
+        front = np.zeros(frame.num, dtype=bool)
+        front[frame.facing] = True
+        idx = np.flatnonzero(valid & front & (frame.v[:, 2] < limit))
+        return {"index": t(idx), "limit": t(limit[idx]), "scale": cfg.free_space_count / max(int(valid.sum()), 1)}
+
     def kernel(self, config):
         return "huber", self.HUBER
 
@@ -142,6 +257,16 @@ class FloorContact(Term):
     go; least squares below it: nothing goes through the floor)."""
 
     name = "floor_contact"
+
+    def associate(self, problem, frame):
+        floor = problem.ev.floor
+        if floor is None:
+            return None
+        lowest = int(np.argmin(frame.vertices @ floor[:3] + floor[3]))
+        return {"extra": np.array([lowest]), "scale": 1.0}
+
+    def place(self, block, position):
+        block["index"] = torch.from_numpy(position(block["extra"]))
 
     def kernel(self, config):
         return "gm_above", config.floor_robust
@@ -159,6 +284,9 @@ class Upright(Term):
 
     name = "upright"
 
+    def associate(self, problem, frame):
+        return None if problem.ev.floor is None else {"scale": 1.0}
+
     def kernel(self, config):
         return "gm", config.upright_robust
 
@@ -173,6 +301,10 @@ class CameraAbove(Term):
     """No floor and no depth: the camera is above the foot's sole plane (removes the mirror-in-depth twin)."""
 
     name = "camera_above"
+
+    def associate(self, problem, frame):
+        ev = problem.ev
+        return {"scale": 1.0} if ev.floor is None and ev.depth_points is None else None
 
     def residual(self, problem, out, blocks):
         if "camera_above" not in blocks:
@@ -226,6 +358,23 @@ TERMS: tuple[Term, ...] = (
 )
 """Every term, in the order their residuals are stacked."""
 BY_NAME: dict[str, Term] = {term.name: term for term in TERMS}
+
+
+def associate(problem: _SideProblem, frame: Frame) -> tuple[Blocks, np.ndarray]:
+    """Every term's block at ``frame``, and the vertices (subset, then the terms' extra ones sorted) to evaluate."""
+    blocks = {}
+    for term in TERMS:
+        block = term.associate(problem, frame)
+        if block is not None:
+            blocks[term.name] = block
+    extra = np.unique(np.concatenate([np.zeros(0, np.int64)] + [b["extra"] for b in blocks.values() if "extra" in b]))
+
+    def position(vertex_ids: np.ndarray) -> np.ndarray:
+        return frame.num + np.searchsorted(extra, vertex_ids)
+
+    for name, block in blocks.items():
+        BY_NAME[name].place(block, position)
+    return blocks, np.concatenate([frame.subset, extra])
 
 
 def residuals(problem: _SideProblem, out: dict[str, torch.Tensor], blocks: Blocks) -> dict[str, torch.Tensor]:
