@@ -1,10 +1,12 @@
-"""Box-limited Levenberg-Marquardt, batched in torch: the step and the damping of the model's solvers.
+"""Box-limited Levenberg-Marquardt: the damped, bounds-aware solve that every solver of footmesh takes its steps
+with (batched, torch).
 
-``model.ik.solve_branch_ik`` and ``model.canonical.canonicalise`` take their steps here: Marquardt's diagonal
-scaling, a damping per item, and a projection for the box limits of the joint angles (a parameter on a bound that
-the gradient pushes outwards is held for the step; the step is then clamped into the box by the caller). The fit
-(``fit.core``) runs its own staged solver on NumPy (active sets re-solved within a step, Nielsen's damping
-update), which these two do not need.
+``model.ik.solve_branch_ik`` and ``model.canonical.canonicalise`` use ``damped_step`` (from the Jacobian),
+``fit.core`` uses ``solve_damped`` (from the normal equations it has already formed): Marquardt's diagonal
+scaling, a damping per item, and a projection for the box limits of the joint angles (the ``held`` parameters are
+fixed for the step; the caller clamps the step into the box). What differs between the solvers is their policy
+around it: which parameters are held (``held_at_bounds``: pushed out by the gradient; the fit: pushed out by the
+step itself, re-solved), and how the damping moves (``next_damping``; the fit: Nielsen's rule).
 """
 
 from __future__ import annotations
@@ -30,12 +32,32 @@ def damped_step(
     """
     free = (~held).to(jac.dtype)
     jac = jac * free.unsqueeze(-2)
-    descent = descent * free
-    jtj = jac.transpose(-1, -2) @ jac  # (..., P, P)
-    diag = torch.diagonal(jtj, dim1=-2, dim2=-1)
-    scale = diag + floor * diag.mean(-1, keepdim=True) + 1e-12
-    system = jtj + torch.diag_embed(damping.unsqueeze(-1) * scale + held.to(jac.dtype))
-    return torch.linalg.solve(system, descent.unsqueeze(-1)).squeeze(-1) * free
+    return solve_damped(jac.transpose(-1, -2) @ jac, descent, damping, held, relative_floor=floor)
+
+
+def solve_damped(
+    normal: torch.Tensor,
+    descent: torch.Tensor,
+    damping: torch.Tensor | float,
+    held: torch.Tensor,
+    relative_floor: float = 0.0,
+    absolute_floor: float = 1e-12,
+) -> torch.Tensor:
+    """The step (..., P) solving ``(N + damping diag(s)) d = descent`` over the parameters not ``held`` (held: 0).
+
+    Args:
+        normal: (..., P, P) ``J^T J``. descent: (..., P) ``-J^T r``. damping: (...,) or a number.
+        held: (..., P) bool, fixed for this step.
+        relative_floor, absolute_floor: Marquardt's scale is ``s = diag(N) + relative_floor * mean(diag(N)) +
+            absolute_floor`` (a parameter with no effect still gets a finite, damped step).
+    """
+    free = (~held).to(normal.dtype)
+    normal = normal * free.unsqueeze(-1) * free.unsqueeze(-2)  # a held parameter couples to nothing
+    diag = torch.diagonal(normal, dim1=-2, dim2=-1)
+    scale = diag + relative_floor * diag.mean(-1, keepdim=True) + absolute_floor
+    damping = torch.as_tensor(damping, dtype=normal.dtype)
+    system = normal + torch.diag_embed(damping.unsqueeze(-1) * scale + held.to(normal.dtype))
+    return torch.linalg.solve(system, (descent * free).unsqueeze(-1)).squeeze(-1) * free
 
 
 def next_damping(

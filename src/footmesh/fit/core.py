@@ -67,6 +67,7 @@ import torch
 from scipy import ndimage, sparse
 from scipy.spatial.transform import Rotation
 
+from footmesh import optim
 from footmesh.cues import Cues
 from footmesh.fit import terms
 from footmesh.geometry.alignment import weighted_procrustes
@@ -986,23 +987,22 @@ class _SideProblem:
         return state, assoc, iterations
 
     def _step(self, state: _State, hess: np.ndarray, grad: np.ndarray, damping: float, active: np.ndarray):
-        """Damped Gauss-Newton step (P,) over ``active``; angles at a limit that the step pushes through are held."""
-        free = np.ones(len(active), dtype=bool)
+        """Damped Gauss-Newton step (P,) over ``active`` (``optim.solve_damped``); angles at a limit that the step
+        pushes through are held and the step solved again."""
+        held = np.zeros(len(active), dtype=bool)
+        normal, descent = torch.from_numpy(hess), torch.from_numpy(-grad)
         full = np.zeros(self.arrays.num_params)
         for _ in range(3):
-            a = hess[np.ix_(free, free)]
-            a = a + damping * np.diag(np.diag(a) + 1e-9)
-            d = np.zeros(len(active))
-            d[free] = np.linalg.solve(a, -grad[free])
+            d = optim.solve_damped(normal, descent, damping, torch.from_numpy(held), absolute_floor=1e-9).numpy()
             full = np.zeros(self.arrays.num_params)
             full[active] = d
             ang = state.angles + full[_ANGLES]
             at_lower, at_upper = state.angles <= _LOWER + 1e-12, state.angles >= _UPPER - 1e-12
             blocked = np.flatnonzero(((ang < _LOWER) & at_lower) | ((ang > _UPPER) & at_upper)) + _ANGLES.start
-            newly = np.isin(active, blocked) & free
+            newly = np.isin(active, blocked) & ~held
             if not newly.any():
                 break
-            free &= ~newly
+            held |= newly
         return full
 
     def quality(self, state: _State, assoc: _Association) -> dict[str, float]:
