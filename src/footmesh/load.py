@@ -39,7 +39,7 @@ from PIL import Image, ImageOps, UnidentifiedImageError
 from footmesh.errors import InputError
 from footmesh.formats import accepted, heif
 from footmesh.formats.embedded import DepthSource, align_depth
-from footmesh.geometry.camera import rescale_pixels
+from footmesh.geometry.camera import Camera, rescale_pixels
 
 log = logging.getLogger(__name__)
 
@@ -127,6 +127,11 @@ class Intrinsics:
     def matrix(self) -> np.ndarray:
         """(3, 3) float64 camera matrix K, px."""
         return np.array([[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]])
+
+    @property
+    def camera(self) -> Camera:
+        """The camera of the image (``geometry.camera.Camera``)."""
+        return Camera(self.matrix(), int(self.width), int(self.height))
 
     def resized(self, width: int, height: int) -> Intrinsics:
         """Intrinsics of this image resized to ``width x height`` px (the whole image, each axis scaled on its own)."""

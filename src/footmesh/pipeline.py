@@ -27,7 +27,7 @@ from footmesh.cues import Cues
 from footmesh.cues.predict import average_cues, predict_cues
 from footmesh.cues.refine import height_image, refine_silhouette
 from footmesh.errors import InputError, Refusal
-from footmesh.geometry.camera import crop_intrinsics, pixel_rays, rescale_pixels, resize_intrinsics
+from footmesh.geometry.camera import Camera, rescale_pixels
 from footmesh.load import Photo, load_photo
 from footmesh.measure import FootLandmarks, measure_foot
 from footmesh.model import skeleton as sk
@@ -195,7 +195,9 @@ def decoder_mesh(
     if crop_depth is not None and not np.any(crop_depth > 0):
         return None
     small_rgb, small_depth = resize_inputs(crop_rgb, crop_depth, cfg.image_size)
-    K_small = resize_intrinsics(crop_intrinsics(K, crop.x0, crop.y0), cfg.image_size / crop.side)
+    h, w = (rgb if rgb is not None else depth).shape[:2]
+    seen = Camera(K, w, h).cropped(crop.x0, crop.y0, crop.side, crop.side)  # the same camera, a padded crop
+    K_small = seen.resized(cfg.image_size, cfg.image_size).K
     out = predict_batch(
         net,
         None if small_rgb is None else small_rgb[None],
@@ -225,22 +227,22 @@ def warm_up(config: MeasureConfig | None = None) -> None:
         decoder_network(kind)
 
 
-def working_photo(photo: Photo, max_side: int) -> tuple[np.ndarray, np.ndarray | None, np.ndarray, float]:
-    """The photo, its depth and intrinsics at no more than ``max_side`` px (the pipeline's working resolution).
+def working_photo(photo: Photo, max_side: int) -> tuple[np.ndarray, np.ndarray | None, Camera, float]:
+    """The photo, its depth and camera at no more than ``max_side`` px (the pipeline's working resolution).
 
-    Returns rgb, depth (mm, nearest neighbour), K (3, 3) and the factor from working to photo pixels.
+    Returns rgb, depth (mm, nearest neighbour), the camera of that image and the factor from working to photo
+    pixels.
     """
     h, w = photo.rgb.shape[:2]
     factor = max(h, w) / max_side if max(h, w) > max_side else 1.0
     if factor == 1.0:
-        return photo.rgb, photo.depth_mm, photo.intrinsics.matrix(), 1.0
+        return photo.rgb, photo.depth_mm, photo.intrinsics.camera, 1.0
     ww, wh = int(round(w / factor)), int(round(h / factor))
     rgb = cv2.resize(photo.rgb, (ww, wh), interpolation=cv2.INTER_AREA)
     depth = None
     if photo.depth_mm is not None:
         depth = cv2.resize(photo.depth_mm, (ww, wh), interpolation=cv2.INTER_NEAREST)
-    K = photo.intrinsics.resized(ww, wh).matrix()
-    return rgb, depth, K, w / ww
+    return rgb, depth, photo.intrinsics.camera.resized(ww, wh), w / ww
 
 
 def measure_photo(
@@ -315,7 +317,8 @@ def run_pipeline(photo: Photo, side: str, config: MeasureConfig, input: str = "a
     if kind in ("rgbd", "depth") and photo.depth_mm is None:
         raise InputError(f"{kind} input needs a depth map (--depth)")
     max_side = config.rgb_working_max_side if kind == "rgb" else config.working_max_side
-    rgb, depth, K, to_photo = working_photo(photo, max_side)
+    rgb, depth, camera, to_photo = working_photo(photo, max_side)
+    K = camera.K
     with torch.inference_mode():
         feet = locate_feet(None if kind == "depth" else rgb, None if kind == "rgb" else depth, K, kind, config)
     timings["cues_s"] = time.perf_counter() - t
@@ -368,7 +371,7 @@ def floor_end_on_bound(mask: np.ndarray, K: np.ndarray, cam_from_floor: np.ndarr
     """The largest |cos| between the line of sight to the silhouette's centre and any direction in the floor
     plane: how end-on a foot lying on this floor can be seen at most (0 looking straight down, 1 along it)."""
     ys, xs = np.nonzero(mask)
-    ray = pixel_rays(np.array([xs.mean(), ys.mean()]), K)
+    ray = Camera(K, mask.shape[1], mask.shape[0]).rays(np.array([xs.mean(), ys.mean()]))
     ray /= np.linalg.norm(ray)
     normal = cam_from_floor[:3, 2]
     return math.sqrt(max(0.0, 1.0 - float(ray @ normal) ** 2))

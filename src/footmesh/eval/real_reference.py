@@ -87,7 +87,8 @@ def score_photo(path: str | os.PathLike, marked_px: np.ndarray) -> RealReference
 
     config = MeasureConfig()
     photo = load_photo(path)
-    rgb, _, K, to_photo = working_photo(photo, config.rgb_working_max_side)
+    rgb, _, camera, to_photo = working_photo(photo, config.rgb_working_max_side)
+    K = camera.K
     with torch.inference_mode():
         feet = locate_feet(rgb, None, K, "rgb", config)
     feet_mask = np.any([foot.mask for foot in feet], axis=0).astype(np.uint8)

@@ -1,11 +1,13 @@
 """Pinhole cameras in pixels: the centre of the top-left pixel is (0, 0), an image spans -0.5 .. W - 0.5.
 
-``K`` is the (..., 3, 3) intrinsic matrix ``[[fx, s, cx], [0, fy, cy], [0, 0, 1]]`` of an image, as a NumPy array
-or a torch tensor; each function returns the same kind it is given.
+``Camera`` is one image's camera (K and the image size) with its crops, resizes and projections; the functions
+under it work on ``K``, the (..., 3, 3) intrinsic matrix ``[[fx, s, cx], [0, fy, cy], [0, 0, 1]]`` of an image,
+as a NumPy array or a torch tensor; each function returns the same kind it is given.
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -57,3 +59,33 @@ def pixel_rays(points_px: np.ndarray, K: np.ndarray) -> np.ndarray:
 def unproject(points_px: np.ndarray, depth: np.ndarray, K: np.ndarray) -> np.ndarray:
     """Camera-frame points (..., 3) of pixels (..., 2) at camera depths z (...,) (mm)."""
     return pixel_rays(points_px, K) * np.asarray(depth, dtype=np.float64)[..., None]
+
+
+@dataclass(frozen=True, eq=False)
+class Camera:
+    """A pinhole camera of one image: intrinsics ``K`` (3, 3) px and the image's ``width`` x ``height`` px."""
+
+    K: np.ndarray
+    width: int
+    height: int
+
+    def resized(self, width: int, height: int) -> Camera:
+        """The camera of this image resized to ``width`` x ``height`` px (each axis scaled on its own)."""
+        return Camera(resize_intrinsics(self.K, width / self.width, height / self.height), int(width), int(height))
+
+    def cropped(self, x0: float, y0: float, width: int, height: int) -> Camera:
+        """The camera of the ``width`` x ``height`` crop whose top-left pixel is ``(x0, y0)`` (may reach past the
+        image: a padded crop)."""
+        return Camera(crop_intrinsics(self.K, x0, y0), int(width), int(height))
+
+    def project(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Camera-frame points (..., 3) mm -> pixels (..., 2) and depths (...,) mm."""
+        return project(np.asarray(points, dtype=np.float64), self.K)
+
+    def rays(self, points_px: np.ndarray) -> np.ndarray:
+        """Rays (..., 3) through pixels (..., 2), z = 1."""
+        return pixel_rays(points_px, self.K)
+
+    def unproject(self, points_px: np.ndarray, depth: np.ndarray) -> np.ndarray:
+        """Camera-frame points (..., 3) of pixels (..., 2) at depths (...,) mm."""
+        return unproject(points_px, depth, self.K)

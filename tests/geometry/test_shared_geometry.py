@@ -1,0 +1,78 @@
+"""The shared geometry (footmesh.geometry): cameras, normals, rotations and alignment against known answers."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+import trimesh
+from scipy.spatial.transform import Rotation
+
+from footmesh.geometry.alignment import umeyama, weighted_procrustes
+from footmesh.geometry.camera import Camera, pixel_rays, rescale_pixels, resize_intrinsics, unproject
+from footmesh.geometry.mesh import batch_vertex_normals, face_normals, vertex_normals
+from footmesh.geometry.rotations import rotation_between, skew
+
+K = np.array([[520.0, 0.8, 319.5], [0.0, 515.0, 241.0], [0.0, 0.0, 1.0]])
+POINTS = np.array([[30.0, -12.0, 480.0], [-60.0, 40.0, 700.0], [0.0, 0.0, 350.0]])
+
+
+def test_a_crop_and_a_resize_move_the_projections_as_the_pixels_move():
+    camera = Camera(K, 640, 480)
+    uv, z = camera.project(POINTS)
+    crop = camera.cropped(100, -20, 300, 300)  # reaching past the top edge: a padded crop
+    np.testing.assert_allclose(crop.project(POINTS)[0], uv - [100, -20], atol=1e-9)
+    small = crop.resized(128, 128)
+    np.testing.assert_allclose(small.project(POINTS)[0], rescale_pixels(uv - [100, -20], 128 / 300), atol=1e-9)
+    assert (small.width, small.height) == (128, 128)
+    np.testing.assert_allclose(z, POINTS[:, 2])
+    halves = camera.resized(320, 240)  # each axis on its own
+    np.testing.assert_allclose(halves.project(POINTS)[0], rescale_pixels(uv, [0.5, 0.5]), atol=1e-9)
+    torch.testing.assert_close(resize_intrinsics(torch.from_numpy(K), 0.5), torch.from_numpy(halves.K))
+
+
+def test_unproject_inverts_project_and_rays_have_unit_depth():
+    camera = Camera(K, 640, 480)
+    uv, z = camera.project(POINTS)
+    np.testing.assert_allclose(camera.unproject(uv, z), POINTS, atol=1e-9)
+    np.testing.assert_allclose(pixel_rays(uv, K)[:, 2], 1.0)
+    np.testing.assert_allclose(unproject(uv[None], z[None], K)[0], POINTS, atol=1e-9)  # any leading shape
+
+
+def test_normals_point_out_of_a_sphere_in_numpy_and_torch():
+    sphere = trimesh.creation.icosphere(subdivisions=3, radius=50.0)
+    v, f = np.asarray(sphere.vertices), np.asarray(sphere.faces)
+    radial = v / np.linalg.norm(v, axis=1, keepdims=True)
+    normals = vertex_normals(v, f)
+    assert np.min(np.sum(normals * radial, axis=1)) > 0.999
+    batched = batch_vertex_normals(torch.from_numpy(v)[None], torch.from_numpy(f))[0].numpy()
+    np.testing.assert_allclose(batched, normals, atol=1e-9)
+    areas = np.linalg.norm(face_normals(v, f, unit=False), axis=1) / 2
+    assert areas.sum() == pytest.approx(sphere.area, rel=1e-9)
+
+
+def test_skew_is_the_cross_product_and_a_rotation_turns_one_direction_onto_another():
+    rng = np.random.default_rng(3)
+    w, u = rng.normal(size=(5, 3)), rng.normal(size=(5, 3))
+    np.testing.assert_allclose(np.einsum("nij,nj->ni", skew(w), u), np.cross(w, u), atol=1e-12)
+    torch.testing.assert_close(skew(torch.from_numpy(w)), torch.from_numpy(skew(w)))
+    for a, b in [(u[0], u[1]), (u[2], -u[2])]:  # any two, and opposite ones
+        a, b = a / np.linalg.norm(a), b / np.linalg.norm(b)
+        r = rotation_between(a, b)
+        np.testing.assert_allclose(r @ a, b, atol=1e-12)
+        np.testing.assert_allclose(r @ r.T, np.eye(3), atol=1e-12)
+        assert np.linalg.det(r) == pytest.approx(1.0)
+
+
+def test_umeyama_recovers_a_similarity_with_weights_ignoring_outliers_they_zero():
+    rng = np.random.default_rng(4)
+    source = rng.normal(size=(40, 3)) * 30
+    rot = Rotation.from_rotvec([0.3, -0.5, 0.2]).as_matrix()
+    target = 1.7 * source @ rot.T + [5.0, -8.0, 300.0]
+    target[:5] += 200.0  # outliers
+    weights = np.r_[np.zeros(5), np.ones(35)]
+    sim = umeyama(source, target, weights)
+    assert sim.scale == pytest.approx(1.7) and np.allclose(sim.rotation, rot)
+    np.testing.assert_allclose(sim.inverse_apply(sim.apply(source)), source, atol=1e-9)
+    r, s, t = weighted_procrustes(torch.from_numpy(source), torch.from_numpy(target)[None], torch.from_numpy(weights))
+    np.testing.assert_allclose(r[0].numpy(), rot, atol=1e-9)
