@@ -27,7 +27,7 @@ Block = dict[str, Any]
 Blocks = dict[str, Block]
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class Frame:
     """The model at the state being associated, camera frame: every vertex (V, 3) mm, its normal (V, 3) and its
     projection (V, 2) px; the fit's spread ``subset`` (N,) of them, which of those the leg hides (N,) bool and
