@@ -27,6 +27,8 @@ KINDS = ("a4", "card", "marker")
 ROOT = Path(__file__).resolve().parents[1]
 REAL_PHOTOS = ROOT / ".." / "shared" / "real" / "a4" / "photos"
 REAL_CORNERS = ROOT / "tests" / "data" / "real_a4_corners.json"
+NO_REFERENCE_PHOTOS = ROOT / ".." / "shared" / "real" / "rafiansyah" / "photos"
+"""Real photos of feet on patterned tiles with no reference object in any: whatever is found is false."""
 
 
 def floor_distance_mm(normal: np.ndarray, point: np.ndarray) -> float:
@@ -121,6 +123,9 @@ def main() -> None:
     parser.add_argument("--size", type=int, default=640, help="photo side, px")
     parser.add_argument("--seed", type=int, default=4242, help="seed of the photos (eval measure's default)")
     parser.add_argument("--real", type=Path, default=REAL_PHOTOS, help="folder of the real A4 photos")
+    parser.add_argument(
+        "--no-reference", type=Path, default=NO_REFERENCE_PHOTOS, help="folder of real photos without any reference"
+    )
     args = parser.parse_args()
     print(format_table(run(args.n, args.size, args.seed)))
     print()
@@ -128,6 +133,13 @@ def main() -> None:
         print(format_real_table(args.real))
     else:
         print(f"(real photos not found at {args.real}: the synthetic table only)")
+    if args.no_reference.is_dir():
+        from footmesh.eval.real_reference import false_references
+
+        photos = [p for p in args.no_reference.iterdir() if p.is_file()]
+        false = false_references(args.no_reference)
+        print(f"\nreal photos without any reference object ({args.no_reference}): {len(false)} of {len(photos)} give a"
+              f" false one: {', '.join(f'{name} ({kind})' for name, kind in false) or 'none'}")  # fmt: skip
 
 
 if __name__ == "__main__":

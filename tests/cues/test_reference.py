@@ -218,6 +218,29 @@ def test_a_square_of_a_tiled_pattern_is_not_blank_inside():
     assert _blank_inside(quad, lines, valid, cv2.GaussianBlur(patterned, (0, 0), 0.75))
 
 
+def test_a_shadow_on_a_sheet_is_blank_but_a_sparse_pattern_is_not():
+    """Mostly light, yet not blank: a sparse pattern of small dark squares (a tile's print) is many separate blobs,
+    a shadow over the sheet one or two (``MAX_INSIDE_BLOBS``)."""
+    from footmesh.cues.reference.params import MAX_INSIDE_BLOBS
+    from footmesh.cues.reference.sides import _blank_inside, _fit_sides
+
+    image = np.full((200, 260, 3), 0.4, np.float32)
+    quad = np.array([[40.0, 40.0], [40.0, 160.0], [220.0, 160.0], [220.0, 40.0]])
+    cv2.fillPoly(image, [quad.astype(np.int32)], (0.9, 0.9, 0.9))
+    valid = np.ones(image.shape[:2], bool)
+    lines = _fit_sides(quad, cv2.GaussianBlur(image, (0, 0), 0.75), valid, 3.0)
+    shadow = image.copy()
+    cv2.circle(shadow, (120, 150), 45, (0.55, 0.55, 0.55), -1)  # the leg's shadow over one side
+    shadow[:40], shadow[160:], shadow[:, :40], shadow[:, 220:] = 0.4, 0.4, 0.4, 0.4
+    assert _blank_inside(quad, lines, valid, cv2.GaussianBlur(shadow, (0, 0), 0.75))
+    sparse = image.copy()
+    for i, (x, y) in enumerate((x, y) for x in range(55, 205, 30) for y in range(55, 150, 30)):
+        if i % 2 == 0:  # a light tile with a few dark squares: 80 % stays paper
+            cv2.rectangle(sparse, (x, y), (x + 10, y + 10), (0.25, 0.25, 0.25), -1)
+    blurred = cv2.GaussianBlur(sparse, (0, 0), 0.75)
+    assert MAX_INSIDE_BLOBS < 10 and not _blank_inside(quad, lines, valid, blurred)
+
+
 def test_only_the_kinds_asked_for():
     """A card is never reported as a sheet (nor a sheet as a card); asking for it alone still finds it."""
     card = _scenes("card", 1)[0]

@@ -76,8 +76,9 @@ def sheet_centre_distance_mm(corners_px: np.ndarray, K: np.ndarray) -> float:
     return best[1]
 
 
-def score_photo(path: str | os.PathLike, marked_px: np.ndarray) -> RealReferenceScore:
-    """Search one photo for its reference the way the pipeline does and score it against the marked corners."""
+def pipeline_search(path: str | os.PathLike):
+    """The pipeline's reference search on one photo (working resolution, the feet masked out): (photo, K of the
+    working image, working-to-photo factor, ``ReferenceSearch``, seconds of the search)."""
     import torch
 
     from footmesh.config import MeasureConfig
@@ -88,14 +89,29 @@ def score_photo(path: str | os.PathLike, marked_px: np.ndarray) -> RealReference
     config = MeasureConfig()
     photo = load_photo(path)
     rgb, _, camera, to_photo = working_photo(photo, config.rgb_working_max_side)
-    K = camera.K
     with torch.inference_mode():
-        feet = locate_feet(rgb, None, K, "rgb", config)
+        feet = locate_feet(rgb, None, camera.K, "rgb", config)
     feet_mask = np.any([foot.mask for foot in feet], axis=0).astype(np.uint8)
     exclude = cv2.dilate(feet_mask, np.ones((DILATE_PX, DILATE_PX), np.uint8)) > 0
     start = time.perf_counter()
-    searched = search_reference(rgb, K, exclude_mask=exclude)
-    seconds = time.perf_counter() - start
+    searched = search_reference(rgb, camera.K, exclude_mask=exclude)
+    return photo, camera.K, to_photo, searched, time.perf_counter() - start
+
+
+def false_references(photos_dir: str | os.PathLike) -> list[tuple[str, str]]:
+    """(photo, kind) of every photo in a folder of photos *without* any reference object where the pipeline's
+    search takes something for one (each such one would give millimetres the photo cannot give)."""
+    found = []
+    for path in sorted(p for p in Path(photos_dir).iterdir() if p.is_file()):
+        searched = pipeline_search(path)[3]
+        if searched.found is not None:
+            found.append((path.name, searched.found.kind))
+    return found
+
+
+def score_photo(path: str | os.PathLike, marked_px: np.ndarray) -> RealReferenceScore:
+    """Search one photo for its reference the way the pipeline does and score it against the marked corners."""
+    photo, K, to_photo, searched, seconds = pipeline_search(path)
     found = searched.found
     nan4 = (float("nan"),) * 4
     if found is None:

@@ -45,6 +45,13 @@ LOOSE_FACTOR = 3.0
 MIN_BLANK_SHARE = 0.5
 """Of a sheet's inside that the foot's mask leaves, at least this share must be of the paper's colour (a shadow
 over part of the sheet is allowed for)."""
+MAX_INSIDE_BLOBS = 3
+"""Of a sheet's inside that the foot's mask leaves, the parts not of the paper's colour may form at most this many
+separate blobs (each at least ``MIN_BLOB_SHARE`` of it): a shadow is one or two (0-2 on 50 rendered sheets, guided
+and random views, shadows of the foot and leg over them), a tiled floor's pattern many (5-26 on tile squares
+taken for sheets)."""
+MIN_BLOB_SHARE = 0.002
+"""Blobs smaller than this share of the sheet's inside are noise, not counted."""
 MIN_PAPER_SHOWN = 0.1
 """Searched again without the caller's mask, a sheet must show paper over at least this fraction of its area
 outside the mask: the foot's lit skin (with the floor around the toes) passed as a white sheet once, while the

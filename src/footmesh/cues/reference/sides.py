@@ -23,8 +23,10 @@ from footmesh.cues.reference.params import (
     FIRST_RADIUS_PX,
     FLOOR_MATCH,
     MAX_CONTINUATION,
+    MAX_INSIDE_BLOBS,
     MAX_RESIDUAL_RATIO,
     MIN_BLANK_SHARE,
+    MIN_BLOB_SHARE,
     MIN_CONTINUATIONS,
     MIN_CONTRAST,
     MIN_CORNER_COVERAGE,
@@ -58,18 +60,28 @@ def _paper_beside(quad: np.ndarray, masked: np.ndarray, blurred: np.ndarray) -> 
 
 def _blank_inside(quad: np.ndarray, lines: list[_Line], valid: np.ndarray, blurred: np.ndarray) -> bool:
     """Whether a sheet's inside, where the caller's mask leaves it (``valid`` (H, W) bool), is blank paper: at least
-    ``MIN_BLANK_SHARE`` of those pixels within half the sides' typical change of the paper's colour. A square of a
-    tiled floor's pattern passes every test of its sides, but has the pattern inside."""
-    inside = np.zeros(valid.shape, np.uint8)
-    cv2.fillPoly(inside, [np.round(quad).astype(np.int32)], 1)
-    shown = (cv2.erode(inside, _KERNEL5) > 0) & valid
+    ``MIN_BLANK_SHARE`` of those pixels within half the sides' typical change of the paper's colour, and the rest
+    in at most ``MAX_INSIDE_BLOBS`` blobs (a shadow, not a pattern). A square of a tiled floor's pattern passes every
+    test of its sides, but has the pattern inside."""
+    h, w = valid.shape
+    x0, y0 = np.maximum(np.floor(quad.min(axis=0)).astype(int), 0)
+    x1, y1 = np.minimum(np.ceil(quad.max(axis=0)).astype(int) + 1, [w, h])
+    if x1 <= x0 or y1 <= y0:
+        return True
+    inside = np.zeros((y1 - y0, x1 - x0), np.uint8)  # the quad's bounding box: the test is per candidate
+    cv2.fillPoly(inside, [np.round(quad - [x0, y0]).astype(np.int32)], 1)
+    shown = (cv2.erode(inside, _KERNEL5) > 0) & valid[y0:y1, x0:x1]
     if not shown.any():
         return True  # all of it under the foot: nothing to tell
     inner, outer = _inner_outer(quad, lines)
     paper = np.median(inner, axis=0)
     change = float(np.median(np.linalg.norm(inner - outer, axis=1)))
-    near = np.linalg.norm(blurred[shown] - paper, axis=1) < 0.5 * change
-    return float(near.mean()) >= MIN_BLANK_SHARE
+    near = np.linalg.norm(blurred[y0:y1, x0:x1] - paper, axis=2) < 0.5 * change
+    if float(near[shown].mean()) < MIN_BLANK_SHARE:
+        return False
+    _, _, stats, _ = cv2.connectedComponentsWithStats((shown & ~near).astype(np.uint8), connectivity=8)
+    blobs = int(np.sum(stats[1:, cv2.CC_STAT_AREA] >= MIN_BLOB_SHARE * shown.sum()))
+    return blobs <= MAX_INSIDE_BLOBS
 
 
 @dataclass(frozen=True)
