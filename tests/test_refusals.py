@@ -77,6 +77,14 @@ def test_a_reference_is_contradicted_by_an_impossible_foot_or_floor():
     assert "A4 sheet implies a floor no fitted foot stands on" in note and "ignored" in note
 
 
+def test_a_reference_far_from_the_foot_is_not_the_one_put_beside_it():
+    beside = refusals.contradicted_reference("a4", 250.0, GOOD, CONFIG, separation_mm=300.0)
+    assert beside is None
+    far = refusals.contradicted_reference("card", 250.0, GOOD, CONFIG, separation_mm=1200.0)
+    assert "bank card lies 1.2 m from the foot" in far and "ignored" in far
+    assert refusals.contradicted_reference("card", None, GOOD, CONFIG, separation_mm=5000.0) is None  # no scale
+
+
 @pytest.mark.parametrize("kind", ["rgb", "rgbd", "depth"])
 def test_end_on_limits_per_input(kind):
     limit = {"rgb": CONFIG.max_rgb_end_on, "rgbd": CONFIG.max_rgbd_end_on, "depth": CONFIG.max_depth_end_on}[kind]

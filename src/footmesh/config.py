@@ -315,6 +315,10 @@ class MeasureConfig:
     """With RGB-D, average the RGB-D network's cues with the depth network's (``cues.predict.average_cues``):
     on 20 guided RGB-D photos the RGB-D cues alone gave length / width MAE 4.06 / 1.75 mm, the depth network's
     2.92 / 2.06 mm (measured with ``footmesh eval measure --views guided``; the average: README)."""
+    max_reference_separation: float = 3.0
+    """A reference object is put beside the foot (the photo guide; the renders place it 110-460 mm from the foot's
+    centre): one whose floor puts the fitted foot's centre more than this many foot lengths from the object's is
+    something else far off (single tile cells 1.0-1.3 m from the foot passed as a card or sheet) and is ignored."""
     max_model_outside: float = 0.25
     """Refuse the photo when more than this fraction of the fitted model's visible vertices fall more than 2 px
     outside the foot's silhouette (``FootFit.quality``): the fit went wrong and its millimetres would be too. Good

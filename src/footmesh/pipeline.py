@@ -501,7 +501,8 @@ def _measure_located(
     if reference is None and (refusal := refusals.implausible_length(length_mm, config)) is not None:
         raise refusal
     if reference is not None:
-        contradicted = refusals.contradicted_reference(reference.kind, length_mm, fit.quality, config)
+        separation = float(np.linalg.norm(fit.vertices_cam.mean(axis=0) - reference.centre_mm))
+        contradicted = refusals.contradicted_reference(reference.kind, length_mm, fit.quality, config, separation)
         if contradicted is not None:
             messages.append(contradicted)
             reference = None

@@ -85,14 +85,28 @@ def implausible_length(length_mm: float | None, config: MeasureConfig) -> Refusa
 
 
 def contradicted_reference(
-    kind: str, length_mm: float | None, quality: FitQuality, config: MeasureConfig
+    kind: str,
+    length_mm: float | None,
+    quality: FitQuality,
+    config: MeasureConfig,
+    separation_mm: float | None = None,
 ) -> str | None:
     """Why the object taken for a reference of ``kind`` was something else, or None: the floor it implies makes
-    no adult foot, or none that stands on it and covers the foot in the photo (the cut top of a trouser leg once
-    passed as a card). Not a refusal: the pipeline says so and measures without it."""
+    no adult foot, none that stands on it and covers the foot in the photo (the cut top of a trouser leg once
+    passed as a card), or puts the foot far from it (``separation_mm``: between their centres on that floor).
+    Not a refusal: the pipeline says so and measures without it."""
     low, high = config.plausible_length_mm
     if length_mm is not None and not low <= length_mm <= high:
         why = f"would make the foot {length_mm:.0f} mm long, outside the {low:.0f}-{high:.0f} mm of adult feet"
+    elif (
+        length_mm is not None
+        and separation_mm is not None
+        and separation_mm > config.max_reference_separation * length_mm
+    ):
+        why = (
+            f"lies {separation_mm / 1000:.1f} m from the foot (more than {config.max_reference_separation:g} foot "
+            "lengths): not the object put beside it"
+        )
     elif quality.vertices_outside_2px > config.max_model_outside:
         outside = 100 * quality.vertices_outside_2px
         why = f"implies a floor no fitted foot stands on ({outside:.0f} % of it fell outside the foot)"

@@ -45,11 +45,15 @@ class ReferenceObject:
         return float(-self.floor_normal @ self.cam_from_floor[:3, 3])
 
     @property
+    def centre_mm(self) -> np.ndarray:
+        """(3,) the object's centre, camera frame, mm."""
+        length, width = self.size_mm
+        return self.cam_from_floor[:3, :3] @ [length / 2, width / 2, 0.0] + self.cam_from_floor[:3, 3]
+
+    @property
     def object_distance_mm(self) -> float:
         """Distance (mm) from the camera centre to the object's centre."""
-        length, width = self.size_mm
-        centre = self.cam_from_floor[:3, :3] @ [length / 2, width / 2, 0.0] + self.cam_from_floor[:3, 3]
-        return float(np.linalg.norm(centre))
+        return float(np.linalg.norm(self.centre_mm))
 
     def floor_points(self, points_px: np.ndarray, K: np.ndarray) -> np.ndarray:
         """(N, 2) px -> (N, 3) mm: where the pixels' rays meet the floor, in the floor frame (z = 0); NaN if never."""
