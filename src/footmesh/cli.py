@@ -339,7 +339,17 @@ def _add_train_commands(sub: argparse._SubParsersAction) -> None:
     )
     recon.add_argument("--config", help="JSON configuration (footmesh.train.recon); command-line flags override it")
     recon.add_argument("--loss", choices=("thesis", "structure"), help="mesh loss (default thesis)")
-    recon.add_argument("--kind", choices=("ism", "edgeconv"), help="mesh decoder (default ism) or edgeconv baseline")
+    recon.add_argument(
+        "--kind",
+        choices=("ism", "edgeconv", "model"),
+        help="ism: the thesis' spiral mesh decoder (default); model: the foot model's parameters plus an ISM "
+        "residual; edgeconv: the point-cloud baseline",
+    )
+    recon.add_argument(
+        "--encoder",
+        choices=("resnet", "efficientnet_lite0"),
+        help="image encoder: resnet (from scratch, the default) or the ImageNet-pretrained EfficientNet-Lite0",
+    )
     recon.add_argument("--steps", type=int, help="training steps")
     recon.add_argument("--batch-size", type=int, help="batch size per process")
     recon.add_argument("--max-minutes", type=float, help="stop (resumable) after this many minutes")
@@ -399,7 +409,7 @@ def _run_train_cues(args: argparse.Namespace) -> int:
 def _run_train_recon(args: argparse.Namespace) -> int:
     from dataclasses import replace
 
-    from footmesh.recon.model import LOSSES
+    from footmesh.recon.model import EFFICIENTNET_WIDTHS, LOSSES
     from footmesh.train.recon import load_recon_config, train_recon
 
     config = load_recon_config(args.config)
@@ -407,8 +417,13 @@ def _run_train_recon(args: argparse.Namespace) -> int:
     # a kind changed by the flag brings its own default loss (the EdgeConv baseline: the Chamfer distance)
     loss = args.loss or (config.model.loss if kind == config.model.kind else LOSSES[kind][0])
     model = replace(config.model, input=args.input, kind=kind, loss=loss)
+    if args.encoder == "efficientnet_lite0" and model.widths != EFFICIENTNET_WIDTHS:
+        decoder = replace(model.decoder, skip_in_channels=tuple(reversed(EFFICIENTNET_WIDTHS)))
+        model = replace(model, widths=EFFICIENTNET_WIDTHS, decoder=decoder, encoder=args.encoder)
+    elif args.encoder:
+        model = replace(model, encoder=args.encoder)
     config = replace(config, model=model, train=_train_flags(config.train, args))
-    out = args.out or f"runs/recon-{args.input}-{kind if kind == 'edgeconv' else loss}"
+    out = args.out or f"runs/recon-{args.input}-{loss if kind == 'ism' else kind}"
     result = train_recon(args.data, out, config, progress=not args.no_progress)
     _log_training(result, out)
     return 0
@@ -461,6 +476,9 @@ def _add_eval_commands(sub: argparse._SubParsersAction) -> None:
     recon.add_argument("--views-data", help="test folder made with --views thesis, for Table 4.6")
     recon.add_argument("--weights", help="weights.pt to evaluate instead of the shipped ones (one --input)")
     recon.add_argument("--edgeconv-weights", help="weights.pt of an EdgeConv baseline run, for Table 4.4")
+    recon.add_argument(
+        "--model-weights", help="weights.pt of a model-based run (train recon --kind model), beside the ISM decoder"
+    )
     recon.add_argument("--limit", type=int, help="evaluate only the first N samples of each folder")
     recon.add_argument("--json", help="also write the numbers to this JSON file")
     recon.set_defaults(func=_run_eval_recon)
@@ -509,7 +527,18 @@ def _run_eval_recon(args: argparse.Namespace) -> int:
     if args.limit is not None and args.limit < 1:
         raise InputError(f"--limit must be at least 1, got {args.limit}")
     weights = {inputs[0]: args.weights} if args.weights else None
-    print(run_eval(args.data, inputs, args.views_data, weights, args.json, args.edgeconv_weights, args.limit))
+    print(
+        run_eval(
+            args.data,
+            inputs,
+            args.views_data,
+            weights,
+            args.json,
+            args.edgeconv_weights,
+            args.limit,
+            model_weights=args.model_weights,
+        )
+    )
     return 0
 
 

@@ -179,11 +179,16 @@ def _located_in(rgb, depth, K, kind: str, config: MeasureConfig, box: np.ndarray
 
 
 def decoder_mesh(
-    located: Located, rgb: np.ndarray | None, depth: np.ndarray | None, K: np.ndarray, kind: str
+    located: Located,
+    rgb: np.ndarray | None,
+    depth: np.ndarray | None,
+    K: np.ndarray,
+    kind: str,
+    side: str = "auto",
 ) -> np.ndarray | None:
     """The shipped ``kind`` mesh decoder's foot (V, 3) mm, camera frame, from the networks' crop of the photo
     (K (3, 3) of the photo; the images ``kind`` does not use are ignored); None when the crop holds no depth to
-    read the scale from."""
+    read the scale from. A model-based decoder builds the mesh for ``side`` when it is known (not ``auto``)."""
     from footmesh.cues.predict import resize_inputs
     from footmesh.recon.model import predict_batch
     from footmesh.recon.weights import network_for
@@ -203,6 +208,7 @@ def decoder_mesh(
         None if small_rgb is None else small_rgb[None],
         None if small_depth is None else small_depth[None],
         K_small[None],
+        None if side == "auto" else np.array([side == "right"]),
     )
     return out.vertices[0].double().numpy()
 
@@ -475,7 +481,7 @@ def _measure_located(
     mesh = None
     if start or tell_side:
         with torch.inference_mode():
-            mesh = decoder_mesh(located, rgb, depth, K, kind)
+            mesh = decoder_mesh(located, rgb, depth, K, kind, side)
     if mesh is not None and start:
         init = FitInit(vertices_cam=mesh, alone=False)
     if mesh is not None and tell_side:

@@ -41,7 +41,7 @@ def views_data(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def weights(tmp_path_factory):
-    """Weights files of untrained tiny networks: {"rgb": path, "rgbd": path, "edgeconv": path}."""
+    """Weights files of untrained tiny networks: {"rgb": path, "rgbd": path, "edgeconv": path, "model": path}."""
     from footmesh.recon.hierarchy import template_hierarchy
 
     folder = tmp_path_factory.mktemp("recon-weights")
@@ -51,6 +51,7 @@ def weights(tmp_path_factory):
         "rgb": replace(TINY, input="rgb"),
         "rgbd": TINY,
         "edgeconv": replace(TINY, kind="edgeconv", loss="chamfer", edgeconv=edge),
+        "model": replace(TINY, kind="model", loss="structure"),
     }
     out = {}
     for name, config in configs.items():
@@ -162,6 +163,22 @@ def test_tables_put_ours_beside_the_thesis_and_label_rgb(views_data, weights, tm
         run_eval(views_data, ["rgbd"], weights={"rgbd": str(weights["edgeconv"])}, limit=1)
     with pytest.raises(ValueError, match="not 'rgb'"):
         evaluate(views_data, "rgb", weights["rgbd"], limit=1)
+
+
+def test_the_model_based_network_has_its_own_row_and_column(views_data, weights, tmp_path):
+    out = tmp_path / "m.json"
+    text = run_eval(
+        views_data, ["rgbd"], views_data, {"rgbd": str(weights["rgbd"])}, out, model_weights=weights["model"], limit=3
+    )
+    assert "| ISM, rgbd |" in text and "| model-based + ISM residual, rgbd |" in text
+    assert text.count("9.89") == 2  # the thesis' RGB-D cell beside both
+    assert "model ours | model thesis" in text
+    data = json.loads(out.read_text())
+    assert data["model"]["kind"] == "model" and data["model"]["samples"] == 3
+    with pytest.raises(ValueError, match="--model-weights"):
+        run_eval(views_data, ["rgbd"], weights={"rgbd": str(weights["model"])}, limit=1)
+    with pytest.raises(ValueError, match="not a model-based one"):
+        run_eval(views_data, ["rgbd"], weights={"rgbd": str(weights["rgbd"])}, model_weights=weights["rgbd"])
 
 
 def test_tables_without_views_or_edgeconv(views_data, weights):

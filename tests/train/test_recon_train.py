@@ -86,7 +86,7 @@ def _blob_batch(arrays, rows: np.ndarray, joint: int) -> ReconBatch:
     gx = torch.exp(-((px - uv[:, :1]) ** 2) / (2 * 1.2**2))  # (B, S)
     gy = torch.exp(-((px - uv[:, 1:]) ** 2) / (2 * 1.2**2))
     rgb = (gy[:, :, None] * gx[:, None, :]).unsqueeze(1).expand(-1, 3, -1, -1).contiguous()
-    return ReconBatch(rgb, torch.full_like(batch.depth, 400.0), batch.K, batch.vertices, batch.joints3d)
+    return replace(batch, rgb=rgb, depth=torch.full_like(batch.depth, 400.0))
 
 
 def _centroid(rgb: torch.Tensor) -> torch.Tensor:
@@ -119,6 +119,27 @@ def test_augmentation_moves_image_targets_and_intrinsics_together(tiny_data):
     assert (det < 0).any() and (det > 0).any()
     assert torch.allclose(out.K[:, 0, 0], out.K[:, 1, 1]) and not torch.allclose(out.K, batch.K)
     assert torch.equal(out.K[:, :2, 2], batch.K[:, :2, 2])  # the principal point stays
+
+
+def test_augmented_foot_model_parameters_still_build_the_augmented_mesh(tiny_data):
+    """Rotation, mirror and zoom keep the parameters' targets consistent: the foot model of the turned rotation
+    and the swapped side is the turned (mirrored) mesh, so the model-based head learns from exact targets."""
+    from footmesh.model.layer import default_model
+
+    arrays = load_recon_arrays(tiny_data, SIZE, progress=False)
+    batch = make_recon_batch(arrays, np.arange(12))
+    aug = ReconAugment(rotate_deg=40.0, flip=0.5, zoom=(0.85, 1.15), **NO_PHOTOMETRIC)
+    out = augment_recon(batch, aug, torch.Generator().manual_seed(2))
+    assert (out.right != batch.right).any() and (out.right == batch.right).any()
+    eye = torch.eye(3).expand(12, 3, 3)
+    assert torch.allclose(out.rotation @ out.rotation.transpose(1, 2), eye, atol=1e-5)
+    assert torch.allclose(torch.linalg.det(out.rotation), torch.ones(12), atol=1e-5)
+    for b in (batch, out):
+        sides = ["right" if r > 0.5 else "left" for r in b.right.tolist()]
+        built = default_model()(b.shape, b.angles, side=sides, rotation=b.rotation).vertices
+        target = b.vertices
+        err = (built - built.mean(1, keepdim=True)) - (target - target.mean(1, keepdim=True))
+        assert err.norm(dim=-1).max() < 0.05  # mm
 
 
 def test_identity_augmentation_changes_nothing_and_non_square_pixels_are_refused(tiny_data):
@@ -166,6 +187,27 @@ def test_train_two_steps_writes_weights_and_card_then_resumes(tiny_data, tmp_pat
     assert "vertex_mm" in log and "edge" in log
     with pytest.raises(ValueError, match="another configuration"):
         train_recon(tiny_data, run2, tiny_config(loss="structure"), progress=False)
+
+
+@pytest.mark.parametrize("residual", [False, True])
+def test_model_based_head_trains_and_its_weights_load(tiny_data, tmp_path, residual):
+    config = tiny_config(kind="model", loss="structure", residual=residual)
+    result = train_recon(tiny_data, tmp_path / "model", config, progress=False)
+    assert result.finished and 0 < result.metrics["val_vertex_mm"] < 500
+    log = (tmp_path / "model" / "log.csv").read_text()
+    assert all(term in log for term in ("model_mesh", "shape", "angles", "rotation", "side"))
+    model, net, _ = load_network(tmp_path / "model" / WEIGHTS)
+    assert net == config.model and (model.decoder is not None) == residual
+    assert "model-based head" in (tmp_path / "model" / MODEL_CARD).read_text()
+    arrays = load_recon_arrays(tiny_data, SIZE, progress=False)
+    batch = make_recon_batch(arrays, np.arange(2))
+    x, ref = recon_input("rgbd", batch.rgb, batch.depth)
+    given = torch.tensor([True, False])
+    out = model(x, batch.K, ref, given)
+    assert torch.equal(out.right, given) and out.vertices.shape == (2, 4002, 3)
+    # the side given decides the mirror: the other side's mesh is a different one
+    other = model(x, batch.K, ref, ~given)
+    assert (other.model_vertices - out.model_vertices).norm(dim=-1).mean() > 1.0
 
 
 def test_edgeconv_baseline_trains_with_chamfer(tiny_data, tmp_path):

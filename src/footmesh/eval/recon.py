@@ -33,7 +33,7 @@ from footmesh.model.skeleton import JOINT_NAMES
 from footmesh.recon.joints import joints_from_vertices, midfoot_aligned_error
 
 INPUTS = ("rgb", "rgbd", "depth")
-KEYS = ["rgb", "depth", "vertices", "joints3d", "K", "view_id"]
+KEYS = ["rgb", "depth", "vertices", "joints3d", "K", "view_id", "side"]
 
 
 @dataclass
@@ -42,6 +42,8 @@ class ReconScores:
 
     input: str
     kind: str
+    residual: bool = False
+    """``kind="model"``: whether the network adds the ISM decoder's residual."""
     vertex: list[float] = field(default_factory=list)
     vertex_centred: list[float] = field(default_factory=list)
     vertex_scaled: list[float] = field(default_factory=list)
@@ -50,6 +52,11 @@ class ReconScores:
     joint: list[np.ndarray] = field(default_factory=list)  # (18,) midfoot-aligned, column 0 = 0
     joint_scaled: list[np.ndarray] = field(default_factory=list)  # (18,) midfoot- and scale-aligned
     joint_floor: list[np.ndarray] = field(default_factory=list)  # (18,) joints of the true mesh vs the truth
+    vertex_side_given: list[float] = field(default_factory=list)
+    """``kind="model"``: the raw vertex error when the mesh is built for the true side (as when the user or the
+    2D-cues network's side head gives it), beside ``vertex`` with the network's own side."""
+    joint_side_given: list[np.ndarray] = field(default_factory=list)
+    side_correct: list[bool] = field(default_factory=list)
     view_id: list[int] = field(default_factory=list)
     seconds: float = 0.0
     latency_ms: dict[str, float] = field(default_factory=dict)
@@ -90,6 +97,10 @@ class ReconScores:
                 "joint_mm_floor_mean": float(floor[:, 1:].mean()),
             }
         )
+        if self.vertex_side_given:
+            out["vertex_mm_side_given"] = _mean(self.vertex_side_given)
+            out["joint_mm_mean_side_given"] = float(np.array(self.joint_side_given)[:, 1:].mean())
+            out["side_accuracy"] = _mean([float(c) for c in self.side_correct])
         return out
 
 
@@ -184,7 +195,7 @@ def evaluate(
         raise ValueError(f"{path} is a network for {config.input!r} input, not {input_kind!r}")
     dataset = SynthDataset(data, keys=KEYS)
     n = len(dataset) if limit is None else min(limit, len(dataset))
-    scores = ReconScores(input_kind, config.kind)
+    scores = ReconScores(input_kind, config.kind, config.kind == "model" and config.residual)
     size = config.image_size
     for start in range(0, n, batch):
         samples = [dataset[i] for i in range(start, min(start + batch, n))]
@@ -215,6 +226,12 @@ def evaluate(
         scores.joint += list(midfoot_aligned_error(joints, true_j).numpy())
         scores.joint_scaled += list(scale_aligned_joint_error(joints, true_j).numpy())
         scores.joint_floor += list(midfoot_aligned_error(joints_from_vertices(true_v), true_j).numpy())
+        if config.kind == "model":
+            right = np.array([bool(s["side"]) for s in samples])
+            scores.side_correct += (out.right.numpy() == right).tolist()
+            given = predict_batch(model, rgb, depth, K, right).vertices
+            scores.vertex_side_given += vertex_errors(given, true_v)["raw"].tolist()
+            scores.joint_side_given += list(midfoot_aligned_error(joints_from_vertices(given), true_j).numpy())
     scores.latency_ms = latency(model)
     return scores
 
@@ -230,7 +247,21 @@ def latency(model, runs: int = 20) -> dict[str, float]:
     ref = torch.full((1,), 500.0) if cfg.input != "rgb" else None
     latent = torch.zeros(1, cfg.latent_features)
     skips = [torch.zeros(1, c) for c in cfg.decoder.skip_in_channels]
-    decoder = model.decoder if model.decoder is not None else model.generator
+
+    def decode() -> None:
+        """Everything after the latent code: the mesh decoder, the point generator, or the model-based head
+        (its parameters, the foot model and the residual decoder)."""
+        if cfg.kind == "model":
+            from footmesh.recon.parametric import ParametricHead
+
+            parameters = model.parametric(latent)
+            ParametricHead.mesh(parameters, parameters.right_logit > 0)
+            if model.decoder is not None:
+                model.decoder(latent, skips, torch.zeros(1, 3))
+        elif model.decoder is not None:
+            model.decoder(latent, skips)
+        else:
+            model.generator(latent)
 
     def median(fn) -> float:
         fn()
@@ -243,7 +274,7 @@ def latency(model, runs: int = 20) -> dict[str, float]:
 
     return {
         "network": median(lambda: model(x, K, ref)),
-        "decoder": median(lambda: decoder(latent, skips) if model.decoder is not None else decoder(latent)),
+        "decoder": median(decode),
     }
 
 
@@ -271,9 +302,18 @@ def format_tables(
     results: dict[str, ReconScores],
     view_results: dict[str, ReconScores] | None = None,
     edgeconv: ReconScores | None = None,
+    model: ReconScores | None = None,
+    model_views: ReconScores | None = None,
 ) -> str:
-    """Markdown Tables 4.4, 4.5 (and 4.6 with the viewpoint split), ours beside the thesis'."""
-    kinds = [k for k in INPUTS if k in results]
+    """Markdown Tables 4.4, 4.5 (and 4.6 with the viewpoint split), ours beside the thesis'; ``model``: the
+    model-based network's scores, a row / column of their own beside the pure ISM decoder's (same thesis cell)."""
+    results = dict(results)
+    view_results = dict(view_results) if view_results else {}
+    if model is not None:
+        results[MODEL_LABEL] = model
+        if model_views is not None:
+            view_results[MODEL_LABEL] = model_views
+    kinds = [k for k in (*INPUTS, MODEL_LABEL) if k in results]
     summ = {k: results[k].summary() for k in kinds}
     n = summ[kinds[0]]["samples"] if kinds else (edgeconv.samples if edgeconv else 0)
     lines = [
@@ -296,9 +336,15 @@ def format_tables(
     for k in kinds:
         s = summ[k]
         lines.append(
-            f"| ISM, {k} | **{s['vertex_mm']:.2f}** | {thesis.VERTEX_MM[k]:.2f} | {s['vertex_mm_centroid_aligned']:.2f}"
+            f"| {_row_name(k, results[k])} | **{s['vertex_mm']:.2f}** | {thesis.VERTEX_MM[results[k].input]:.2f} | "
+            f"{s['vertex_mm_centroid_aligned']:.2f}"
             f" | {s['vertex_mm_scale_aligned']:.2f} | {s['scale_factor_mean']:.3f} | {s['chamfer_mm']:.2f} |"
         )
+        if "vertex_mm_side_given" in s:
+            lines.append(
+                f"| ... the same, built for the true side (its own side right on {100 * s['side_accuracy']:.0f} %) | "
+                f"{s['vertex_mm_side_given']:.2f} | | | | | |"
+            )
     if "rgb" in summ:
         s = summ["rgb"]
         lines += [
@@ -325,12 +371,12 @@ def format_tables(
         ]
         first = summ[kinds[0]]
         for j, name in enumerate(JOINT_NAMES):
-            cells = [f"{summ[k]['joint_mm'][name]:.2f} | {thesis.JOINT_MM[k][j]:.2f}" for k in kinds]
+            cells = [f"{summ[k]['joint_mm'][name]:.2f} | {thesis.JOINT_MM[results[k].input][j]:.2f}" for k in kinds]
             if "rgb" in summ:
                 cells.append(f"{summ['rgb']['joint_mm_scale_aligned'][name]:.2f}")
             cells.append(f"{first['joint_mm_floor'][name]:.2f}")
             lines.append(f"| {name} | " + " | ".join(cells) + " |")
-        cells = [f"**{summ[k]['joint_mm_mean']:.2f}** | {thesis.JOINT_MM_MEAN[k]:.2f}" for k in kinds]
+        cells = [f"**{summ[k]['joint_mm_mean']:.2f}** | {thesis.JOINT_MM_MEAN[results[k].input]:.2f}" for k in kinds]
         if "rgb" in summ:
             cells.append(f"{summ['rgb']['joint_mm_scale_aligned_mean']:.2f}")
         cells.append(f"{first['joint_mm_floor_mean']:.2f}")
@@ -341,7 +387,7 @@ def format_tables(
         )
         lines += ["", f"CPU ms per image at batch 1, whole network / decoder ({', '.join(kinds)}): {lat}"]
     if view_results:
-        vkinds = [k for k in INPUTS if k in view_results]
+        vkinds = [k for k in (*INPUTS, MODEL_LABEL) if k in view_results]
         tables = {k: view_table(view_results[k]) for k in vkinds}
         n_views = max(view_results[k].samples for k in vkinds)
         left_out = "".join(
@@ -360,11 +406,21 @@ def format_tables(
         for key in sorted(tables[vkinds[0]], key=lambda a: (a[0], a[1])):
             cells = []
             for k in vkinds:
-                tm, tsd = thesis.JOINT_MM_BY_VIEW[key][k]
+                tm, tsd = thesis.JOINT_MM_BY_VIEW[key][view_results[k].input]
                 ours = f"{tables[k][key][0]:.2f} ({tables[k][key][1]:.2f})" if key in tables[k] else "-"
                 cells.append(f"{ours} | {tm:.2f} ({tsd:.2f})")
             lines.append(f"| {key[0]} | {key[1]} | " + " | ".join(cells) + " |")
     return "\n".join(lines)
+
+
+MODEL_LABEL = "model"
+"""The key of the model-based network's scores beside the per-input ISM decoders' in ``format_tables``."""
+
+
+def _row_name(key: str, scores: ReconScores) -> str:
+    if key != MODEL_LABEL:
+        return f"ISM, {key}"
+    return f"model-based{' + ISM residual' if scores.residual else ''}, {scores.input}"
 
 
 def run_eval(
@@ -375,14 +431,26 @@ def run_eval(
     json_out: str | os.PathLike | None = None,
     edgeconv_weights: str | os.PathLike | None = None,
     limit: int | None = None,
+    model_weights: str | os.PathLike | None = None,
 ) -> str:
-    """Evaluate the networks for ``inputs`` (and the EdgeConv baseline if given) on the first ``limit`` samples
-    (all by default) of each folder; return the tables and write the summaries as JSON."""
+    """Evaluate the networks for ``inputs`` (and the EdgeConv baseline and a model-based network if given) on the
+    first ``limit`` samples (all by default) of each folder; return the tables and write the summaries as JSON."""
     weights = weights or {}
     results = {k: evaluate(data, k, weights.get(k), limit=limit) for k in inputs}
     for k, s in results.items():
         if s.kind != "ism":
-            raise ValueError(f"the {k} weights hold an EdgeConv network; give it with --edgeconv-weights")
+            flag = "--edgeconv-weights" if s.kind == "edgeconv" else "--model-weights"
+            raise ValueError(f"the {k} weights hold a {s.kind} network, not the ISM decoder; give it with {flag}")
+    model = model_views = None
+    if model_weights:
+        from footmesh.recon.weights import read_weights
+
+        _, cfg, _ = read_weights(model_weights)
+        if cfg.kind != "model":
+            raise ValueError(f"{model_weights} holds a {cfg.kind} network, not a model-based one")
+        model = evaluate(data, cfg.input, model_weights, limit=limit)
+        if views_data:
+            model_views = evaluate(views_data, cfg.input, model_weights, limit=limit)
     view_results = None
     if views_data:
         view_results = {k: evaluate(views_data, k, weights.get(k), limit=limit) for k in inputs}
@@ -394,13 +462,15 @@ def run_eval(
         if cfg.kind != "edgeconv":
             raise ValueError(f"{edgeconv_weights} holds a mesh network, not the EdgeConv baseline")
         edgeconv = evaluate(data, cfg.input, edgeconv_weights, limit=limit)
-    text = format_tables(results, view_results, edgeconv)
+    text = format_tables(results, view_results, edgeconv, model, model_views)
     if json_out:
         from footmesh.report import write_json
 
         payload: dict = {k: v.summary() for k, v in results.items()}
         if edgeconv is not None:
             payload["edgeconv"] = edgeconv.summary()
+        if model is not None:
+            payload[MODEL_LABEL] = model.summary()
         if view_results:
             payload["by_view"] = {
                 k: {f"{a}{d}": list(v) for (a, d), v in view_table(s).items()} for k, s in view_results.items()

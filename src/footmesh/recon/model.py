@@ -49,9 +49,11 @@ from torch import nn
 from footmesh.config import INPUT_CHANNELS
 from footmesh.cues.inputs import DEPTH_CLIP, normalise_rgb
 from footmesh.cues.net import _stage, conv_bn_relu
-from footmesh.recon.decoder import DecoderConfig, DecoderOutput, SpiralDecoder
+from footmesh.model.layer import default_model
+from footmesh.recon.decoder import CentredOutput, DecoderConfig, DecoderOutput, SpiralDecoder
 from footmesh.recon.edgeconv import EdgeConvConfig, EdgeConvGenerator, PointCloudOutput
 from footmesh.recon.hierarchy import MeshHierarchy
+from footmesh.recon.parametric import ModelOutput, ParametricHead
 
 FOCAL_REF = 0.75
 """Reference focal length f_ref of the normalised frame, as a fraction of the input side (about the middle of the
@@ -61,11 +63,14 @@ DEPTH_REF_MM = 500.0
 DEPTH_GAIN = 5.0
 """Relative depth ``d / median - 1`` is fed times this: 1 % of the median (5 mm at 500 mm) -> 0.05, the scale of
 the 2D-cues network's depth channel (100 mm -> 1) at the typical distance."""
-KINDS = ("ism", "edgeconv")
+KINDS = ("ism", "edgeconv", "model")
+ENCODERS = ("resnet", "efficientnet_lite0")
+EFFICIENTNET_WIDTHS = (24, 40, 112, 320)
+"""EfficientNet-Lite0's features at strides 4, 8, 16, 32 (``cues.efficientnet.PYRAMID_CHANNELS[1:]``)."""
 CENTRE_HEADS = ("anchored", "spatial", "global")
 CENTRE_STAGE = 1
 """Encoder stage (stride 8) whose features locate the centroid's pixel."""
-LOSSES = {"ism": ("thesis", "structure"), "edgeconv": ("chamfer",)}
+LOSSES = {"ism": ("thesis", "structure"), "edgeconv": ("chamfer",), "model": ("structure", "thesis")}
 """The losses each kind can be trained with."""
 
 
@@ -90,6 +95,10 @@ class ReconConfig:
     """Channels of the encoder stages at strides 4, 8, 16, 32 (ResNet-18: 64, 128, 256, 512). The decoder costs
     ~85 % of a training step on a CPU, so the encoder is wider than the 2D-cues network's at no measurable cost."""
     blocks: tuple[int, ...] = (1, 1, 1, 1)
+    """ResNet blocks per stage (``encoder="resnet"`` only)."""
+    encoder: str = "resnet"
+    """``resnet``: the ResNet-style encoder trained from scratch; ``efficientnet_lite0``: ImageNet-pretrained
+    EfficientNet-Lite0 from its PyPI package (``widths`` must be ``EFFICIENTNET_WIDTHS``)."""
     coord_channels: bool = True
     """Append normalised x, y coordinate channels to the input (module docstring)."""
     centre_head: str = "anchored"
@@ -97,7 +106,12 @@ class ReconConfig:
     read off the map plus an offset from the latent), ``spatial`` (its pixel by a soft-argmax over the stride-8
     features, its depth from the latent: module docstring) or ``global`` (all three coordinates from the latent)."""
     kind: str = "ism"
-    """``ism``: the spiral mesh decoder; ``edgeconv``: the EdgeConv point-cloud baseline."""
+    """``ism``: the spiral mesh decoder; ``edgeconv``: the EdgeConv point-cloud baseline; ``model``: the foot
+    model's parameters (``recon.parametric``) and, with ``residual``, the spiral decoder's per-vertex residual."""
+    residual: bool = True
+    """``kind="model"``: add the ISM decoder's per-vertex residual to the foot model's mesh."""
+    residual_scale_mm: float = 10.0
+    """``kind="model"``: the residual decoder's coordinates are multiplied by this (its ``shape_scale_mm``)."""
     loss: str = "thesis"
     """ISM: ``thesis`` (L1 + edge length + 0.1 normal) or ``structure`` (L1 + 0.1 normal + Laplacian); EdgeConv:
     ``chamfer``."""
@@ -114,6 +128,11 @@ class ReconConfig:
     def latent_features(self) -> int:
         return self.decoder.in_features
 
+    @property
+    def spiral_decoder(self) -> bool:
+        """Whether the network has the ISM spiral decoder (and so needs the mesh hierarchy)."""
+        return self.kind == "ism" or (self.kind == "model" and self.residual)
+
     def __post_init__(self) -> None:
         if self.input not in INPUT_CHANNELS:
             raise ValueError(f"input must be one of {sorted(INPUT_CHANNELS)}, got {self.input!r}")
@@ -125,6 +144,15 @@ class ReconConfig:
             raise ValueError(
                 f"a {self.kind} network is trained with loss {' or '.join(LOSSES[self.kind])}, not {self.loss!r}"
             )
+        if self.encoder not in ENCODERS:
+            raise ValueError(f"encoder must be one of {ENCODERS}, got {self.encoder!r}")
+        if self.encoder == "efficientnet_lite0" and tuple(self.widths) != EFFICIENTNET_WIDTHS:
+            raise ValueError(
+                f"the EfficientNet-Lite0 encoder's widths are {list(EFFICIENTNET_WIDTHS)}, got {list(self.widths)} "
+                "(ReconConfig.for_widths)"
+            )
+        if self.residual_scale_mm <= 0:
+            raise ValueError(f"residual_scale_mm must be positive, got {self.residual_scale_mm}")
         if len(self.widths) != 4 or len(self.blocks) != 4 or min(self.blocks) < 1 or min(self.widths) < 1:
             raise ValueError("widths and blocks need one positive entry per encoder stage (4)")
         if self.image_size % 32 or self.image_size < 64:
@@ -273,6 +301,25 @@ class ImageEncoder(nn.Module):
         return out
 
 
+class PretrainedEncoder(nn.Module):
+    """EfficientNet-Lite0 (``cues.efficientnet``): ``(B, C, S, S)`` -> its 4 feature maps at strides 4..32 (the
+    stride-2 map is dropped: the decoder pools every map and the centre heads read stride 8)."""
+
+    def __init__(self, in_channels: int) -> None:
+        super().__init__()
+        from footmesh.cues.efficientnet import EfficientNetLite0Features
+
+        self.net = EfficientNetLite0Features(in_channels)
+
+    def load_pretrained(self) -> int:
+        """Copy the packaged ImageNet weights in (the extra input channels start at zero); tensors copied."""
+        return self.net.load_pretrained()
+
+    def forward(self, x: torch.Tensor) -> list[torch.Tensor]:
+        """(B, C, S, S) -> [(B, w_k, S / 2^(k+2), S / 2^(k+2)) for k = 0..3], finest first."""
+        return self.net(x)[1:]
+
+
 class ReconNet(nn.Module):
     """Image (B, C, S, S), intrinsics and depth scale -> mesh (``DecoderOutput``) or points (``PointCloudOutput``).
 
@@ -285,12 +332,27 @@ class ReconNet(nn.Module):
         super().__init__()
         cfg = config if config is not None else ReconConfig()
         self.config = cfg
-        self.encoder = ImageEncoder(cfg.in_channels, cfg.widths, cfg.blocks)
+        if cfg.encoder == "efficientnet_lite0":
+            self.encoder: nn.Module = PretrainedEncoder(cfg.in_channels)
+        else:
+            self.encoder = ImageEncoder(cfg.in_channels, cfg.widths, cfg.blocks)
         self.latent = nn.Sequential(nn.Linear(sum(cfg.widths), cfg.latent_features), nn.ReLU(inplace=True))
-        self.decoder = SpiralDecoder(cfg.decoder, hierarchy) if cfg.kind == "ism" else None
+        self.decoder = None
+        if cfg.kind == "ism":
+            self.decoder = SpiralDecoder(cfg.decoder, hierarchy)
+        elif cfg.spiral_decoder:
+            residual = replace(cfg.decoder.output, shape_scale_mm=cfg.residual_scale_mm)
+            self.decoder = SpiralDecoder(replace(cfg.decoder, output=residual), hierarchy)
+            with torch.no_grad():  # zero start: the first mesh is the foot model's
+                for head in self.decoder.heads:
+                    head.linear.weight.zero_()
+                    head.linear.bias.zero_()
+        self.parametric = ParametricHead(cfg.latent_features) if cfg.kind == "model" else None
+        # the centroid's prior and latent correction (the ISM decoder has its own)
+        self.placement = CentredOutput(cfg.latent_features, cfg.decoder.output) if cfg.kind == "model" else None
         self.centre_map = None
         self.surface_map = None
-        if cfg.kind == "ism" and cfg.centre_head in ("anchored", "spatial"):
+        if cfg.kind in ("ism", "model") and cfg.centre_head in ("anchored", "spatial"):
             # no bias: a softmax over the map ignores a constant added to it, so a bias would never learn
             self.centre_map = nn.Conv2d(cfg.widths[CENTRE_STAGE], 1, kernel_size=1, bias=False)
             # zero start: a uniform map, the centroid on the ray through the image centre
@@ -302,17 +364,23 @@ class ReconNet(nn.Module):
         self.generator = EdgeConvGenerator(cfg.edgeconv) if cfg.kind == "edgeconv" else None
 
     @property
+    def pretrained_submodules(self) -> tuple[str, ...]:
+        """Submodules that start from pretrained weights (``TrainConfig.pretrained_lr_scale`` applies to them)."""
+        return ("encoder",) if self.config.encoder == "efficientnet_lite0" else ()
+
+    @property
     def faces(self) -> torch.Tensor:
-        """(F, 3) faces of the output mesh (left-foot winding; ISM only)."""
-        if self.decoder is None:
+        """(F, 3) faces of the output mesh (left-foot winding; ISM and model only)."""
+        if self.config.kind == "edgeconv":
             raise ValueError("the EdgeConv baseline outputs a point cloud, not a mesh")
-        return self.decoder.faces
+        return default_model().faces_left if self.decoder is None else self.decoder.faces
 
     def forward(
         self,
         x: torch.Tensor,
         K: torch.Tensor,
         depth_ref_mm: torch.Tensor | None = None,
+        right: torch.Tensor | None = None,
     ) -> DecoderOutput | PointCloudOutput:
         """Reconstruct a batch.
 
@@ -320,9 +388,11 @@ class ReconNet(nn.Module):
             x: (B, C, S, S) from ``recon_input`` (without the coordinate channels).
             K: (B, 3, 3) intrinsics of the input images, px of the S x S input (``geometry.camera``).
             depth_ref_mm: (B,) the depth maps' medians (``recon_input``); None for RGB.
+            right: (B,) bool, the side when it is known (training; a side the user gave); None: the network's
+                own left/right prediction (``kind="model"`` only; the other kinds ignore it).
         Returns:
-            ``DecoderOutput`` (vertices (B, 4002, 3), centre, levels) or ``PointCloudOutput`` (points (B, N, 3),
-            centre), mm, camera frame.
+            ``DecoderOutput`` (vertices (B, 4002, 3), centre, levels), ``ModelOutput`` (``kind="model"``: also the
+            foot model's mesh and parameters) or ``PointCloudOutput`` (points (B, N, 3), centre), mm, camera frame.
         """
         cfg = self.config
         want = INPUT_CHANNELS[cfg.input]
@@ -351,9 +421,33 @@ class ReconNet(nn.Module):
         centre = None
         if self.centre_map is not None:
             centre = self._spatial_centre(features[CENTRE_STAGE], latent, depth_channel)
+        if self.parametric is not None:
+            return self._model_output(latent, skips, centre, camera, right)
         out = self.decoder(latent, skips, centre)
         levels = tuple(camera(level) for level in out.levels)
         return DecoderOutput(levels[0], camera(out.centre[:, None])[:, 0], levels)
+
+    def _model_output(self, latent, skips, centre, camera, right: torch.Tensor | None) -> ModelOutput:
+        """The foot model's mesh from the predicted parameters, its centroid at ``centre`` (normalised frame; None:
+        from the latent), plus the residual decoder's per-vertex offsets."""
+        parameters = self.parametric(latent)
+        if right is None:
+            right = parameters.right_logit > 0
+        elif right.shape != parameters.right_logit.shape:
+            raise ValueError(f"right must be (B,) = ({latent.shape[0]},), got {tuple(right.shape)}")
+        centred, _ = ParametricHead.mesh(parameters, right.bool())
+        centre = camera((self.placement.centre(latent) if centre is None else centre)[:, None])[:, 0]
+        model_vertices = centred + centre[:, None]
+        vertices = model_vertices
+        if self.decoder is not None:
+            zero = torch.zeros_like(centre)
+            # to_camera is linear: offsets in the normalised frame become offsets in mm
+            vertices = model_vertices + camera(self.decoder(latent, skips, zero).vertices)
+        return ModelOutput(vertices, centre, (vertices,), model_vertices, parameters, right.bool())
+
+    def _centre_prior(self, latent: torch.Tensor) -> torch.Tensor:
+        """(B, 3) the latent's centroid (normalised frame): the ISM decoder's head, or the model kind's own."""
+        return (self.placement if self.placement is not None else self.decoder.output).centre(latent)
 
     def _spatial_centre(
         self, feature: torch.Tensor, latent: torch.Tensor, depth_channel: torch.Tensor | None = None
@@ -369,7 +463,7 @@ class ReconNet(nn.Module):
         rows = (torch.arange(h, dtype=feature.dtype, device=feature.device) + 0.5) * stride - 0.5
         u = (prob.sum(dim=1) * cols).sum(dim=1)
         v = (prob.sum(dim=2) * rows).sum(dim=1)
-        depth = self.decoder.output.centre(latent)[:, 2]
+        depth = self._centre_prior(latent)[:, 2]
         if self.surface_map is not None and depth_channel is not None:
             depth = depth - DEPTH_REF_MM + self._surface_depth(self.surface_map(feature), depth_channel)
         c0, f_ref = (size - 1) / 2, FOCAL_REF * size
@@ -407,11 +501,14 @@ def predict_batch(
     rgb: np.ndarray | None,
     depth_mm: np.ndarray | None,
     K: np.ndarray,
+    right: np.ndarray | None = None,
 ) -> DecoderOutput | PointCloudOutput:
     """Reconstruct a batch already at the network's side: ``rgb`` (B, S, S, 3) uint8, ``depth_mm`` (B, S, S) mm,
-    ``K`` (B, 3, 3) px of that side; the images the input kind does not use may be None. Outputs in mm."""
+    ``K`` (B, 3, 3) px of that side, ``right`` (B,) bool when the sides are known; the images the input kind does
+    not use may be None. Outputs in mm."""
     cfg = model.config
     t_rgb = None if rgb is None else torch.from_numpy(np.ascontiguousarray(rgb)).permute(0, 3, 1, 2).float() / 255
     t_depth = None if depth_mm is None else torch.from_numpy(np.asarray(depth_mm, np.float32))[:, None]
     x, ref = recon_input(cfg.input, t_rgb, t_depth)
-    return model(x, torch.as_tensor(np.asarray(K), dtype=torch.float32), ref)
+    sides = None if right is None else torch.as_tensor(np.asarray(right, dtype=bool))
+    return model(x, torch.as_tensor(np.asarray(K), dtype=torch.float32), ref, sides)

