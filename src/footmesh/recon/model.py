@@ -435,7 +435,8 @@ class ReconNet(nn.Module):
             right = parameters.right_logit > 0
         elif right.shape != parameters.right_logit.shape:
             raise ValueError(f"right must be (B,) = ({latent.shape[0]},), got {tuple(right.shape)}")
-        centred, _ = ParametricHead.mesh(parameters, right.bool())
+        right = right.bool()
+        centred, _ = ParametricHead.mesh(parameters, right)
         centre = camera((self.placement.centre(latent) if centre is None else centre)[:, None])[:, 0]
         model_vertices = centred + centre[:, None]
         vertices = model_vertices
@@ -443,7 +444,7 @@ class ReconNet(nn.Module):
             zero = torch.zeros_like(centre)
             # to_camera is linear: offsets in the normalised frame become offsets in mm
             vertices = model_vertices + camera(self.decoder(latent, skips, zero).vertices)
-        return ModelOutput(vertices, centre, (vertices,), model_vertices, parameters, right.bool())
+        return ModelOutput(vertices, centre, (vertices,), model_vertices, parameters, right)
 
     def _centre_prior(self, latent: torch.Tensor) -> torch.Tensor:
         """(B, 3) the latent's centroid (normalised frame): the ISM decoder's head, or the model kind's own."""

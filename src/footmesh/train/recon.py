@@ -260,17 +260,7 @@ def make_recon_batch(arrays: ReconArrays, rows: np.ndarray) -> ReconBatch:
     def tensor(a: np.ndarray) -> torch.Tensor:
         return torch.from_numpy(np.ascontiguousarray(a[rows], dtype=np.float32))
 
-    return ReconBatch(
-        rgb,
-        depth,
-        tensor(arrays.K),
-        tensor(arrays.vertices),
-        tensor(arrays.joints3d),
-        tensor(arrays.shape),
-        tensor(arrays.angles),
-        tensor(arrays.rotation),
-        tensor(arrays.right),
-    )
+    return ReconBatch(rgb, depth, **{k: tensor(getattr(arrays, k)) for k in TARGET_KEYS})
 
 
 def augment_recon(
