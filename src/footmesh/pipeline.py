@@ -221,16 +221,23 @@ def joint_sigma_px(crop_side_px: int, config: MeasureConfig) -> float:
 def warm_up(config: MeasureConfig | None = None) -> None:
     """Load the foot model and every shipped network the pipeline uses now, once per process (they are cached):
     a server's forkserver calls it (``footmesh.web.warm``) so that each job forked from it starts with them in
-    memory instead of loading them."""
+    memory instead of loading them. Loading runs on one torch thread: OpenMP's thread team does not survive a
+    fork, and a parallel region here (any tensor copy large enough) left every job forked after it hung at its
+    first one."""
     from footmesh.cues.weights import network_for as cues_network
     from footmesh.recon.weights import network_for as decoder_network
 
     config = config or MeasureConfig()
-    default_model()
-    for kind in ("rgb", "rgbd", "depth"):
-        cues_network(kind)
-    for kind in sorted(set(config.decoder_start_inputs) | set(config.decoder_side_inputs)):
-        decoder_network(kind)
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        default_model()
+        for kind in ("rgb", "rgbd", "depth"):
+            cues_network(kind)
+        for kind in sorted(set(config.decoder_start_inputs) | set(config.decoder_side_inputs)):
+            decoder_network(kind)
+    finally:
+        torch.set_num_threads(threads)
 
 
 def working_photo(photo: Photo, max_side: int) -> tuple[np.ndarray, np.ndarray | None, Camera, float]:
