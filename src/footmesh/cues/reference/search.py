@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import functools
+from collections.abc import Callable
+
 import cv2
 import numpy as np
 
@@ -70,7 +73,12 @@ def search_reference(
     sheets = [(q - q.mean(axis=0)) * MARKER_SHEET_SCALE + q.mean(axis=0) for q in markers]
     seen: set[tuple[int, ...]] = set()  # rough quads already listed (both searches)
     sheet_groups = _candidate_groups(blurred, K, wanted, "sheet", seen) if set(wanted) & set(SHEETS) else []
-    card_groups = _candidate_groups(blurred, K, wanted, "card", seen) if set(wanted) - set(SHEETS) else []
+
+    @functools.cache
+    def card_groups() -> list[list[np.ndarray]]:
+        # listed only when a sheet's own quads gave none (most of a card search's time, wasted beside a sheet)
+        return _candidate_groups(blurred, K, wanted, "card", seen) if set(wanted) - set(SHEETS) else []
+
     searched = _try_groups(sheet_groups, card_groups, sheets, wanted, blurred, K, valid)
     if searched.found is not None:
         return searched
@@ -88,7 +96,7 @@ def search_reference(
 
 def _try_groups(
     sheet_groups: list[list[np.ndarray]],
-    card_groups: list[list[np.ndarray]],
+    card_groups: Callable[[], list[list[np.ndarray]]],
     sheets: list[np.ndarray],
     wanted: list[str],
     blurred: np.ndarray,
@@ -96,7 +104,8 @@ def _try_groups(
     valid: np.ndarray | None,
     masked: np.ndarray | None = None,
 ) -> ReferenceSearch:
-    """Refine and test the rough quads of ``_candidate_groups`` in turn: the A4 sheet found, else the card, else
+    """Refine and test the rough quads of ``_candidate_groups`` in turn (the cards' listed by ``card_groups()``
+    once no sheet was found among the sheets' own): the A4 sheet found, else the card, else
     (``rejected_area`` in px here) why the largest rough quad was rejected. Quads over a marker's printed sheet
     (``sheets``) are skipped, and objects found more than ``MAX_MASKED_SHARE`` inside ``masked`` (H, W) bool."""
     best: dict[str, tuple[float, ReferenceObject]] = {}
@@ -137,7 +146,11 @@ def _try_groups(
         return max(found, key=lambda scored: scored[0])[1] if found else None
 
     cards = [k for k in RECTANGLES if k not in SHEETS]
-    for group in sheet_groups[:1] + card_groups:
+    for group in sheet_groups[:1]:
+        try_candidates(group)
+        if (sheet := best_of(SHEETS)) is not None:
+            return ReferenceSearch(sheet)
+    for group in card_groups():
         try_candidates(group)
         if (sheet := best_of(SHEETS)) is not None:
             return ReferenceSearch(sheet)
