@@ -239,12 +239,12 @@ def test_a_rectangle_that_would_make_the_foot_implausible_gives_no_scale(tmp_pat
     looks like a card seen in perspective. Its floor once made the foot 133 mm short (no adult's); with the
     fine-tuned networks the foot fitted on it misses the photo's foot instead (63 % outside). Either way it is
     ignored and said so: the photo is measured unscaled."""
-    from footmesh.eval.measure import _write_inputs
+    from footmesh.eval.measure import write_inputs
     from footmesh.synth.render import Renderer
     from footmesh.synth.scene import guided_view_config
 
     sample = Renderer(guided_view_config(size=640, reference="none")).render(4242 + 3, 25)
-    paths = _write_inputs(sample, tmp_path, with_depth=False)
+    paths = write_inputs(sample, tmp_path, with_depth=False)
     result = measure_photo(paths["image"], tmp_path / "out", intrinsics=paths["intrinsics"])
     assert result["scale_source"] == "none" and result["reference"] is None
     assert result["measurements"]["stick_length"]["value_mm"] is None
@@ -257,12 +257,12 @@ def test_an_rgbd_photo_of_a_foot_mostly_hidden_by_the_leg_is_refused(tmp_path):
     """A guided eval photo (seed 4242, RGB-D photo 38): the camera looks down the leg, which hides the heel and
     midfoot. Fits of it came out 70-80 mm short with 73 % of the fitted foot on the silhouette: refused, not
     measured."""
-    from footmesh.eval.measure import _write_inputs
+    from footmesh.eval.measure import write_inputs
     from footmesh.synth.render import Renderer
     from footmesh.synth.scene import guided_view_config
 
     sample = Renderer(guided_view_config(size=640, reference="none")).render(4242 + 1, 38)
-    paths = _write_inputs(sample, tmp_path, with_depth=True)
+    paths = write_inputs(sample, tmp_path, with_depth=True)
     with pytest.raises(Refusal, match="shows in the photo .* hides the rest|outline"):
         measure_photo(paths["image"], tmp_path / "out", depth=paths["depth"], intrinsics=paths["intrinsics"])
     assert not (tmp_path / "out" / "result.json").exists()
@@ -361,7 +361,7 @@ def test_the_mesh_decoder_reconstructs_the_foot_in_the_photos_camera_frame():
 
 @pytest.mark.slow
 def test_a_photo_of_both_feet_measures_each_and_keeps_the_one_asked_for(tmp_path):
-    from footmesh.eval.measure import _write_inputs, true_measurements
+    from footmesh.eval.measure import true_measurements, write_inputs
     from footmesh.synth.render import Renderer
     from footmesh.synth.scene import guided_view_config
 
@@ -370,7 +370,7 @@ def test_a_photo_of_both_feet_measures_each_and_keeps_the_one_asked_for(tmp_path
     sample = Renderer(guided_view_config(size=640, reference="a4", other_foot_fraction=1.0)).render(31, 0)
     side = "right" if int(sample["side"]) else "left"
     truth = true_measurements(sample["shape"], side)["stick_length"]
-    paths = _write_inputs(sample, tmp_path / "in", with_depth=False)
+    paths = write_inputs(sample, tmp_path / "in", with_depth=False)
     result = measure_photo(paths["image"], tmp_path / "auto", intrinsics=paths["intrinsics"])
     assert [foot["side"] for foot in result["feet"]] == [side, "left" if side == "right" else "right"]
     assert [foot["primary"] for foot in result["feet"]] == [True, False]

@@ -480,6 +480,13 @@ def _add_eval_commands(sub: argparse._SubParsersAction) -> None:
         "--model-weights", help="weights.pt of a model-based run (train recon --kind model), beside the ISM decoder"
     )
     recon.add_argument("--limit", type=int, help="evaluate only the first N samples of each folder")
+    recon.add_argument(
+        "--pipeline",
+        choices=("rgb", "rgbd", "depth"),
+        action="append",
+        help="also the whole pipeline's mesh (decoder start + fit) for this input (repeatable; ~1 s a photo)",
+    )
+    recon.add_argument("--pipeline-limit", type=int, help="the whole pipeline on the first N samples only")
     recon.add_argument("--json", help="also write the numbers to this JSON file")
     recon.set_defaults(func=_run_eval_recon)
 
@@ -524,8 +531,9 @@ def _run_eval_recon(args: argparse.Namespace) -> int:
     inputs = list(INPUTS) if args.input == "all" else [args.input]
     if args.weights and len(inputs) != 1:
         raise InputError("--weights needs a single --input (rgb, rgbd or depth)")
-    if args.limit is not None and args.limit < 1:
-        raise InputError(f"--limit must be at least 1, got {args.limit}")
+    for flag, value in (("--limit", args.limit), ("--pipeline-limit", args.pipeline_limit)):
+        if value is not None and value < 1:
+            raise InputError(f"{flag} must be at least 1, got {value}")
     weights = {inputs[0]: args.weights} if args.weights else None
     print(
         run_eval(
@@ -537,6 +545,8 @@ def _run_eval_recon(args: argparse.Namespace) -> int:
             args.edgeconv_weights,
             args.limit,
             model_weights=args.model_weights,
+            pipeline=args.pipeline,
+            pipeline_limit=args.pipeline_limit,
         )
     )
     return 0

@@ -13,6 +13,7 @@ from footmesh.eval import thesis
 from footmesh.eval.recon import (
     chamfer_mm,
     evaluate,
+    evaluate_pipeline,
     format_tables,
     run_eval,
     scale_aligned_joint_error,
@@ -25,7 +26,7 @@ from footmesh.recon.joints import joints_from_vertices, midfoot_aligned_error
 from footmesh.recon.model import ReconConfig, ReconNet
 from footmesh.recon.weights import save_weights
 from footmesh.synth.dataset import SynthDataset, generate
-from footmesh.synth.scene import NUM_THESIS_VIEWS, SynthConfig
+from footmesh.synth.scene import NUM_THESIS_VIEWS, SynthConfig, guided_view_config
 
 SIZE = 64
 TINY = ReconConfig.for_widths((8, 8, 16, 16), 16, image_size=SIZE, decoder=DecoderConfig(channels=(8,) * 5))
@@ -205,3 +206,27 @@ def test_cli_prints_the_tables(views_data, weights, tmp_path, capsys):
     assert "Table 4.4" in capsys.readouterr().out and (tmp_path / "e.json").is_file()
     assert main(["eval", "recon", "--data", str(views_data), "--weights", str(weights["rgbd"])]) == 2
     assert "single --input" in capsys.readouterr().err
+
+
+@pytest.mark.slow
+def test_the_whole_pipelines_mesh_is_scored_against_the_rendered_foot(tmp_path, weights, monkeypatch):
+    data = tmp_path / "guided"
+    generate(data, 2, seed=4242, config=guided_view_config(size=320, reference="none"), progress=False)
+    scores = evaluate_pipeline(data, "rgbd")
+    assert scores.samples == 2 and scores.refused == 0 and scores.index == [0, 1]
+    assert max(scores.vertex) < 10.0  # the fit to the depth lands within millimetres of the rendered foot
+    assert len(scores.joint) == 2 and scores.seconds > 0
+    text = format_tables({"rgbd": evaluate(data, "rgbd", weights["rgbd"])}, pipeline={"rgbd": scores})
+    assert "| whole pipeline (decoder start + fit), rgbd (2 of 2 photos measured) |" in text
+    assert "| ... ISM, rgbd, on the same photos |" in text and "mean 3D joint error" in text
+
+    from footmesh import pipeline
+    from footmesh.errors import Refusal
+
+    def refuse(*args, **kwargs):
+        raise Refusal("the foot is cut off by the photo's edge")
+
+    monkeypatch.setattr(pipeline, "measure_photo", refuse)
+    refused = evaluate_pipeline(data, "rgbd", limit=1)
+    assert refused.samples == 0 and refused.refused == 1
+    assert "none of 1 photos measured" in format_tables({}, pipeline={"rgbd": refused})

@@ -123,7 +123,8 @@ def true_measurements(shape: np.ndarray, side: str) -> dict[str, float]:
     return measure_foot(v, model.faces(side).numpy(), FootLandmarks.from_joints(j), side=side).values_mm()
 
 
-def _write_inputs(sample: dict, folder: Path, with_depth: bool) -> dict:
+def write_inputs(sample: dict, folder: Path, with_depth: bool) -> dict:
+    """A synthetic sample as the files a user gives: photo.png, K.json and (``with_depth``) depth.png in mm."""
     folder.mkdir(parents=True, exist_ok=True)
     cv2.imwrite(str(folder / "photo.png"), sample["rgb"][..., ::-1])
     K = sample["K"]
@@ -143,7 +144,7 @@ def _write_heic_inputs(sample: dict, folder: Path) -> dict:
 
     from footmesh.formats.heif_writer import write_heic
 
-    paths = _write_inputs(sample, folder, with_depth=False)
+    paths = write_inputs(sample, folder, with_depth=False)
     depth_mm = sample["depth"].astype(np.float64)
     valid = depth_mm > 0
     near_m, far_m = math.floor(depth_mm[valid].min() / 10) / 100, math.ceil(depth_mm[valid].max() / 10) / 100
@@ -214,7 +215,7 @@ def evaluate_mode(
             if mode == "rgbd_heic":
                 paths = _write_heic_inputs(sample, Path(tmp) / f"{i}")
             else:
-                paths = _write_inputs(sample, Path(tmp) / f"{i}", with_depth=mode in ("rgbd", "depth"))
+                paths = write_inputs(sample, Path(tmp) / f"{i}", with_depth=mode in ("rgbd", "depth"))
             truth = true_measurements(sample["shape"], side)
             angle = view_angle_deg(np.asarray(sample["cam_from_foot"], dtype=np.float64), truth["stick_length"])
             t0 = time.perf_counter()

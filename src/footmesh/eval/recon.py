@@ -33,7 +33,7 @@ from footmesh.model.skeleton import JOINT_NAMES
 from footmesh.recon.joints import joints_from_vertices, midfoot_aligned_error
 
 INPUTS = ("rgb", "rgbd", "depth")
-KEYS = ["rgb", "depth", "vertices", "joints3d", "K", "view_id", "side"]
+KEYS = ["index", "rgb", "depth", "vertices", "joints3d", "K", "view_id", "side"]
 
 
 @dataclass
@@ -62,6 +62,10 @@ class ReconScores:
     latency_ms: dict[str, float] = field(default_factory=dict)
     no_depth: int = 0
     """Samples left out because their depth map holds no valid pixel (views from below the floor), depth inputs."""
+    index: list[int] = field(default_factory=list)
+    """The dataset index of each scored sample (the lists above, in order)."""
+    refused: int = 0
+    """``kind="pipeline"``: photos the whole pipeline refused or could not scale (not scored)."""
 
     @property
     def samples(self) -> int:
@@ -74,6 +78,7 @@ class ReconScores:
             "kind": self.kind,
             "samples": self.samples,
             "left_out_no_depth": self.no_depth,
+            "refused": self.refused,
             "chamfer_mm": _mean(self.chamfer),
             "ms_per_image": 1000 * self.seconds / max(self.samples, 1),
             "latency_ms_batch1": dict(self.latency_ms),
@@ -215,17 +220,10 @@ def evaluate(
         pred = out.points if config.kind == "edgeconv" else out.vertices
         scores.chamfer += chamfer_mm(pred, true_v).tolist()
         scores.view_id += [int(s["view_id"]) for s in samples]
+        scores.index += [int(s["index"]) for s in samples]
         if config.kind == "edgeconv":
             continue
-        errors = vertex_errors(pred, true_v)
-        scores.vertex += errors["raw"].tolist()
-        scores.vertex_centred += errors["centred"].tolist()
-        scores.vertex_scaled += errors["scaled"].tolist()
-        scores.scale += errors["scale"].tolist()
-        joints = joints_from_vertices(pred)
-        scores.joint += list(midfoot_aligned_error(joints, true_j).numpy())
-        scores.joint_scaled += list(scale_aligned_joint_error(joints, true_j).numpy())
-        scores.joint_floor += list(midfoot_aligned_error(joints_from_vertices(true_v), true_j).numpy())
+        _score_meshes(scores, pred, true_v, true_j)
         if config.kind == "model":
             right = np.array([bool(s["side"]) for s in samples])
             scores.side_correct += (out.right.numpy() == right).tolist()
@@ -233,6 +231,72 @@ def evaluate(
             scores.vertex_side_given += vertex_errors(given, true_v)["raw"].tolist()
             scores.joint_side_given += list(midfoot_aligned_error(joints_from_vertices(given), true_j).numpy())
     scores.latency_ms = latency(model)
+    return scores
+
+
+def _score_meshes(scores: ReconScores, pred: torch.Tensor, true_v: torch.Tensor, true_j: torch.Tensor) -> None:
+    """Add the vertex and joint errors of predicted meshes (B, V, 3) against the truth to ``scores``."""
+    errors = vertex_errors(pred, true_v)
+    scores.vertex += errors["raw"].tolist()
+    scores.vertex_centred += errors["centred"].tolist()
+    scores.vertex_scaled += errors["scaled"].tolist()
+    scores.scale += errors["scale"].tolist()
+    joints = joints_from_vertices(pred)
+    scores.joint += list(midfoot_aligned_error(joints, true_j).numpy())
+    scores.joint_scaled += list(scale_aligned_joint_error(joints, true_j).numpy())
+    scores.joint_floor += list(midfoot_aligned_error(joints_from_vertices(true_v), true_j).numpy())
+
+
+def evaluate_pipeline(
+    data: str | os.PathLike, input_kind: str, limit: int | None = None, progress: bool = False
+) -> ReconScores:
+    """Scores of the whole pipeline's mesh (``footmesh measure``'s ``mesh.obj``: the fit to the cues and depth,
+    started from the decoder where ``MeasureConfig.decoder_start_inputs`` says) on the samples of a test folder,
+    each written as the files a user gives. Photos the pipeline refuses, or answers unscaled, are counted in
+    ``refused``, not scored."""
+    import tempfile
+
+    import trimesh
+    from tqdm import tqdm
+
+    from footmesh.errors import Refusal
+    from footmesh.eval.measure import write_inputs
+    from footmesh.pipeline import measure_photo
+    from footmesh.synth.dataset import SynthDataset
+
+    dataset = SynthDataset(data, keys=KEYS)
+    n = len(dataset) if limit is None else min(limit, len(dataset))
+    scores = ReconScores(input_kind, "pipeline")
+    with tempfile.TemporaryDirectory(prefix="footmesh-eval-recon-") as tmp:
+        for i in tqdm(range(n), desc=f"pipeline {input_kind}", disable=not progress):
+            sample = dataset[i]
+            if input_kind != "rgb" and not (sample["depth"] > 0).any():
+                scores.no_depth += 1
+                continue
+            folder = Path(tmp) / str(i)
+            paths = write_inputs(sample, folder, with_depth=input_kind != "rgb")
+            t0 = time.perf_counter()
+            try:
+                result = measure_photo(
+                    paths["image"], folder / "out", depth=paths.get("depth"), intrinsics=paths["intrinsics"],
+                    input=input_kind,
+                )  # fmt: skip
+            except Refusal:
+                scores.refused += 1
+                continue
+            finally:
+                scores.seconds += time.perf_counter() - t0
+            if not result["scaled"]:
+                scores.refused += 1
+                continue
+            mesh = trimesh.load(folder / "out" / result["files"]["mesh_obj"], process=False)
+            pred = torch.as_tensor(np.asarray(mesh.vertices), dtype=torch.float32)[None]
+            true_v = torch.as_tensor(sample["vertices"], dtype=torch.float32)[None]
+            true_j = torch.as_tensor(sample["joints3d"], dtype=torch.float32)[None]
+            scores.chamfer += chamfer_mm(pred, true_v).tolist()
+            scores.view_id.append(int(sample["view_id"]))
+            scores.index.append(int(sample["index"]))
+            _score_meshes(scores, pred, true_v, true_j)
     return scores
 
 
@@ -304,9 +368,12 @@ def format_tables(
     edgeconv: ReconScores | None = None,
     model: ReconScores | None = None,
     model_views: ReconScores | None = None,
+    pipeline: dict[str, ReconScores] | None = None,
 ) -> str:
     """Markdown Tables 4.4, 4.5 (and 4.6 with the viewpoint split), ours beside the thesis'; ``model``: the
-    model-based network's scores, a row / column of their own beside the pure ISM decoder's (same thesis cell)."""
+    model-based network's scores, a row / column of their own beside the pure ISM decoder's (same thesis cell);
+    ``pipeline``: the whole pipeline's mesh per input (``evaluate_pipeline``), rows of their own with the ISM
+    decoder's error on the same photos beside."""
     results = dict(results)
     view_results = dict(view_results) if view_results else {}
     if model is not None:
@@ -345,6 +412,19 @@ def format_tables(
                 f"| ... the same, built for the true side (its own side right on {100 * s['side_accuracy']:.0f} %) | "
                 f"{s['vertex_mm_side_given']:.2f} | | | | | |"
             )
+    for k, scored in (pipeline or {}).items():
+        if not scored.samples:
+            lines.append(f"| {PIPELINE_ROW}, {k} | none of {scored.refused} photos measured | | | | | |")
+            continue
+        s = scored.summary()
+        lines.append(
+            f"| {PIPELINE_ROW}, {k} ({scored.samples} of {scored.samples + scored.refused} photos measured) | "
+            f"**{s['vertex_mm']:.2f}** | {thesis.VERTEX_MM[k]:.2f} | {s['vertex_mm_centroid_aligned']:.2f} | "
+            f"{s['vertex_mm_scale_aligned']:.2f} | {s['scale_factor_mean']:.3f} | {s['chamfer_mm']:.2f} |"
+        )
+        if k in results:
+            same = _on_samples(results[k], scored.index)
+            lines.append(f"| ... ISM, {k}, on the same photos | {_mean(same.vertex):.2f} | | | | | |")
     if "rgb" in summ:
         s = summ["rgb"]
         lines += [
@@ -386,6 +466,20 @@ def format_tables(
             for k in kinds
         )
         lines += ["", f"CPU ms per image at batch 1, whole network / decoder ({', '.join(kinds)}): {lat}"]
+    for k, scored in (pipeline or {}).items():
+        if not scored.samples:
+            continue
+        s = scored.summary()
+        beside = ""
+        if k in results:
+            same = np.array(_on_samples(results[k], scored.index).joint)
+            beside = f" (ISM, {k}, on the same photos: {same[:, 1:].mean():.2f} mm)"
+        lines += [
+            "",
+            f"{PIPELINE_ROW}, {k}: mean 3D joint error (17 joints, the same reading off the mesh) "
+            f"{s['joint_mm_mean']:.2f} mm{beside}; thesis {thesis.JOINT_MM_MEAN[k]:.2f}; "
+            f"{s['ms_per_image'] / 1000:.2f} s per photo.",
+        ]
     if view_results:
         vkinds = [k for k in (*INPUTS, MODEL_LABEL) if k in view_results]
         tables = {k: view_table(view_results[k]) for k in vkinds}
@@ -415,6 +509,20 @@ def format_tables(
 
 MODEL_LABEL = "model"
 """The key of the model-based network's scores beside the per-input ISM decoders' in ``format_tables``."""
+PIPELINE_ROW = "whole pipeline (decoder start + fit)"
+
+
+def _on_samples(scores: ReconScores, index: list[int]) -> ReconScores:
+    """``scores`` kept to the samples of dataset ``index`` (vertex and joint errors only)."""
+    where = {i: n for n, i in enumerate(scores.index)}
+    keep = [where[i] for i in index if i in where]
+    return ReconScores(
+        scores.input,
+        scores.kind,
+        vertex=[scores.vertex[n] for n in keep],
+        joint=[scores.joint[n] for n in keep],
+        index=[scores.index[n] for n in keep],
+    )
 
 
 def _row_name(key: str, scores: ReconScores) -> str:
@@ -432,9 +540,12 @@ def run_eval(
     edgeconv_weights: str | os.PathLike | None = None,
     limit: int | None = None,
     model_weights: str | os.PathLike | None = None,
+    pipeline: list[str] | None = None,
+    pipeline_limit: int | None = None,
 ) -> str:
     """Evaluate the networks for ``inputs`` (and the EdgeConv baseline and a model-based network if given) on the
-    first ``limit`` samples (all by default) of each folder; return the tables and write the summaries as JSON."""
+    first ``limit`` samples (all by default) of each folder, and the whole pipeline for the inputs ``pipeline`` on
+    the first ``pipeline_limit`` (about a second a photo); return the tables and write the summaries as JSON."""
     weights = weights or {}
     results = {k: evaluate(data, k, weights.get(k), limit=limit) for k in inputs}
     for k, s in results.items():
@@ -462,7 +573,8 @@ def run_eval(
         if cfg.kind != "edgeconv":
             raise ValueError(f"{edgeconv_weights} holds a mesh network, not the EdgeConv baseline")
         edgeconv = evaluate(data, cfg.input, edgeconv_weights, limit=limit)
-    text = format_tables(results, view_results, edgeconv, model, model_views)
+    whole = {k: evaluate_pipeline(data, k, pipeline_limit, progress=True) for k in pipeline or []}
+    text = format_tables(results, view_results, edgeconv, model, model_views, whole)
     if json_out:
         from footmesh.report import write_json
 
@@ -471,6 +583,8 @@ def run_eval(
             payload["edgeconv"] = edgeconv.summary()
         if model is not None:
             payload[MODEL_LABEL] = model.summary()
+        for k, scored in whole.items():
+            payload[f"pipeline_{k}"] = scored.summary() if scored.samples else {"refused": scored.refused}
         if view_results:
             payload["by_view"] = {
                 k: {f"{a}{d}": list(v) for (a, d), v in view_table(s).items()} for k, s in view_results.items()
