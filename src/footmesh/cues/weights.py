@@ -48,7 +48,11 @@ def _read(path: str | os.PathLike) -> dict[str, Any]:
 
 def load_state(path: str | os.PathLike) -> dict[str, torch.Tensor]:
     """The float32 state dict of a weights file."""
-    return {k: (v.float() if v.is_floating_point() else v) for k, v in _read(path)["state_dict"].items()}
+    return _float_state(_read(path))
+
+
+def _float_state(data: dict[str, Any]) -> dict[str, torch.Tensor]:
+    return {k: (v.float() if v.is_floating_point() else v) for k, v in data["state_dict"].items()}
 
 
 def load_network(path: str | os.PathLike) -> tuple[nn.Module, CuesNetConfig, dict[str, Any]]:
@@ -59,7 +63,7 @@ def load_network(path: str | os.PathLike) -> tuple[nn.Module, CuesNetConfig, dic
     cfg = data["config"]
     config = CuesNetConfig(**{k: tuple(v) if isinstance(v, list) else v for k, v in cfg.items()})
     model = build_network(config)
-    model.load_state_dict(load_state(path))
+    model.load_state_dict(_float_state(data))
     model.eval()
     return model, config, data.get("info", {})
 
