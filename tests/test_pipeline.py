@@ -18,6 +18,7 @@ from footmesh.cli import main
 from footmesh.config import MeasureConfig
 from footmesh.cues import Cues
 from footmesh.errors import Refusal
+from footmesh.eval.measure import write_inputs
 from footmesh.examples import examples
 from footmesh.pipeline import CropBox, _cues_in_photo, measure_photo
 
@@ -183,6 +184,24 @@ def test_a_plain_photo_of_a_foot_seen_end_on_is_refused(tmp_path):
     with pytest.raises(Refusal, match="seen end-on"):
         measure_photo(ex.image, tmp_path, intrinsics=ex.intrinsics, config=strict)
     assert not (tmp_path / "result.json").exists()
+
+
+@pytest.mark.slow
+def test_a_plain_photo_without_a_reference_seen_end_on_is_answered_unscaled_without_its_ratio(tmp_path):
+    from footmesh.synth.render import Renderer
+    from footmesh.synth.scene import guided_view_config
+
+    # no reference: no length to foreshorten, and only the fit's pose would say end-on: said, not refused
+    sample = Renderer(guided_view_config(size=480, reference="none")).render(4242, 3)
+    paths = write_inputs(sample, tmp_path / "in", with_depth=False)
+    strict = MeasureConfig(max_rgb_end_on=-1.0)  # any view counts as end-on
+    result = measure_photo(paths["image"], tmp_path / "out", intrinsics=paths["intrinsics"], config=strict)
+    assert result["scale_source"] == "none" and result["ratios"] == {}
+    assert any("nearly end-on" in m and "ratio is not given" in m for m in result["messages"])
+    assert (tmp_path / "out" / "mask.png").is_file()
+    usual = measure_photo(paths["image"], tmp_path / "usual", intrinsics=paths["intrinsics"])
+    assert "ball_width/stick_length" in usual["ratios"]
+    assert not any("nearly end-on" in m for m in usual["messages"])
 
 
 @pytest.mark.slow

@@ -181,9 +181,10 @@ def _one_line(result: dict) -> str:
     m = result["measurements"]
     length, width = m["stick_length"]["value_mm"], m["ball_width"]["value_mm"]
     if length is None:
-        return (
-            f"{result['side']} foot, unscaled (width/length {result['ratios'].get('ball_width/stick_length', 0):.3f})"
-        )
+        ratios = result["ratios"]
+        if "ball_width/stick_length" not in ratios:  # withheld: the foot was seen end-on (see its messages)
+            return f"{result['side']} foot, unscaled, seen end-on (no width/length ratio)"
+        return f"{result['side']} foot, unscaled (width/length {ratios['ball_width/stick_length']:.3f})"
     return f"{result['side']} foot, length {length:.1f} mm, ball width {width:.1f} mm ({result['scale_source']})"
 
 

@@ -525,9 +525,12 @@ def _measure_located(
     if seen_reference is not None:
         # the floor the reference shows, not the fit, says how end-on a foot lying on it can be seen
         floor = (seen_reference.kind, floor_end_on_bound(located.mask, K, seen_reference.cam_from_floor))
-    refusal = refusals.fitted_foot(fit.quality, _end_on(fit), kind, config, floor)
+    refusal = refusals.fitted_foot(fit.quality, _end_on(fit), kind, config, floor, scaled=fit.scaled)
     if refusal is not None:
         raise refusal
+    end_on_note = None if fit.scaled else refusals.end_on_note(_end_on(fit), kind, config)
+    if end_on_note is not None:
+        messages.append(end_on_note)
 
     t = time.perf_counter()
     model = default_model()
@@ -573,7 +576,7 @@ def _measure_located(
         scaled=bool(fit.scaled),
         reference=None if reference is None else _reference_dict(reference, to_photo),
         measurements=measured.to_dict(),
-        ratios=measured.ratios(),
+        ratios={} if end_on_note is not None else measured.ratios(),
         sizes=sizes.to_dict(),
         joints2d_px=joints2d_photo.round(2).tolist(),
         joint_confidence=np.round(located.cues.joint_confidence, 3).tolist(),

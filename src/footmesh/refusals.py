@@ -145,6 +145,17 @@ def seen_end_on(end_on: float, kind: str, config: MeasureConfig) -> Refusal | No
     )
 
 
+def end_on_note(end_on: float, kind: str, config: MeasureConfig) -> str | None:
+    """What an unscaled result says instead of refusing a foot its fit points end-on (``fitted_foot``): its
+    width/length ratio, which that foreshortening would spoil, is not given; None when it is not end-on."""
+    if seen_end_on(end_on, kind, config) is None:
+        return None
+    return (
+        f"the fitted foot points {_degrees(end_on):.0f} deg from the line of sight (nearly end-on), so its "
+        f"width/length ratio is not given; {FROM_THE_SIDE} for it"
+    )
+
+
 def model_outside(quality: FitQuality, config: MeasureConfig) -> Refusal | None:
     """More than ``config.max_model_outside`` of the fitted foot falls outside the foot in the photo."""
     if quality.vertices_outside_2px <= config.max_model_outside:
@@ -185,15 +196,19 @@ def fitted_foot(
     kind: str,
     config: MeasureConfig,
     floor: tuple[str, float] | None = None,
+    scaled: bool = True,
 ) -> Refusal | None:
     """The first refusal of a fitted foot, in order: heel hidden (a plain photo with a reference's ``floor`` =
-    (its kind, ``floor_end_on_bound``)), end-on, model outside the silhouette, outline not followed, foot hidden."""
+    (its kind, ``floor_end_on_bound``)), end-on, model outside the silhouette, outline not followed, foot hidden.
+    ``scaled`` False (a plain photo without a reference): no length is given to be foreshortened, and the end-on
+    angle would come from the fit's pose alone, which nothing in such a photo checks: it is not refused but said
+    (``end_on_note``)."""
     hidden = None
     if kind == "rgb" and floor is not None:
         hidden = heel_hidden(end_on, floor[1], floor[0], config)
     return (
         hidden
-        or seen_end_on(end_on, kind, config)
+        or (seen_end_on(end_on, kind, config) if scaled else None)
         or model_outside(quality, config)
         or outline_not_followed(quality, kind, config)
         or foot_hidden(quality, kind, config)
