@@ -73,8 +73,12 @@ def _config(data: dict[str, Any]) -> ReconConfig:
 def read_weights(path: str | os.PathLike) -> tuple[dict[str, torch.Tensor], ReconConfig, dict[str, Any]]:
     """The float32 state dict, configuration and info of a weights file."""
     data = _read(path)
-    state = {k: (v.float() if v.is_floating_point() else v) for k, v in data["state_dict"].items()}
-    return state, _config(data), data.get("info", {})
+    return _float_state(data), _config(data), data.get("info", {})
+
+
+def _float_state(data: dict[str, Any]) -> dict[str, torch.Tensor]:
+    """The file's state dict in float32 (it is stored in half precision)."""
+    return {k: (v.float() if v.is_floating_point() else v) for k, v in data["state_dict"].items()}
 
 
 def load_network(path: str | os.PathLike) -> tuple[ReconNet, ReconConfig, dict[str, Any]]:
@@ -85,7 +89,7 @@ def load_network(path: str | os.PathLike) -> tuple[ReconNet, ReconConfig, dict[s
     if config.spiral_decoder and hierarchy is None:
         raise ValueError(f"{path} holds a mesh network without its mesh hierarchy")
     model = ReconNet(config, hierarchy)
-    model.load_state_dict({k: (v.float() if v.is_floating_point() else v) for k, v in data["state_dict"].items()})
+    model.load_state_dict(_float_state(data))
     model.eval()
     return model, config, data.get("info", {})
 
