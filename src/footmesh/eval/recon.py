@@ -80,7 +80,8 @@ class ReconScores:
             "left_out_no_depth": self.no_depth,
             "refused": self.refused,
             "chamfer_mm": _mean(self.chamfer),
-            "ms_per_image": 1000 * self.seconds / max(self.samples, 1),
+            # per image tried: the pipeline's refused photos took their time too
+            "ms_per_image": 1000 * self.seconds / max(self.samples + self.refused, 1),
             "latency_ms_batch1": dict(self.latency_ms),
         }
         if self.kind == "edgeconv":
