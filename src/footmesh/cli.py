@@ -450,12 +450,19 @@ def _add_eval_commands(sub: argparse._SubParsersAction) -> None:
     meas.add_argument("--size", type=int, default=640, help="photo side, px (default 640)")
     meas.add_argument(
         "--views",
-        choices=("random", "thesis", "guided", "ood", "sweep"),
+        choices=("random", "thesis", "guided", "ood", "sweep", "tele"),
         default="random",
         help="camera views: random (any side and height), thesis (its 22 viewpoints), guided (as the photo guide "
         "asks: from the side and above, foot flat on the floor), ood (unlike the training renders: other fields of "
         "view and distances, lifted and posed feet, a leg stump, re-toned skin, heavier noise), sweep (flat feet "
-        "from every side and height, end-on included: benchmarks/bench_end_on.py)",
+        "from every side and height, end-on included: benchmarks/bench_end_on.py), tele (the guided views through a "
+        "2x-3x lens)",
+    )
+    meas.add_argument(
+        "--withhold-intrinsics",
+        action="store_true",
+        help="measure the RGB photos without their K.json, as photos without EXIF are (the focal length assumed, "
+        "or taken from the reference object's perspective)",
     )
     meas.add_argument("--seed", type=int, default=4242, help="seed of the test photos (default 4242; training: 1-3)")
     meas.add_argument("--json", help="also write per-photo records to this JSON file")
@@ -511,7 +518,16 @@ def _run_eval_measure(args: argparse.Namespace) -> int:
         raise InputError(f"--modes must be a comma list of {', '.join(MODES)}; got {args.modes!r}")
     if args.n < 1 or args.size < 128:
         raise InputError("--n must be at least 1 and --size at least 128")
-    run_eval(modes, args.n, args.size, args.views, args.json, progress=not args.no_progress, seed=args.seed)
+    run_eval(
+        modes,
+        args.n,
+        args.size,
+        args.views,
+        args.json,
+        progress=not args.no_progress,
+        seed=args.seed,
+        withhold_intrinsics=args.withhold_intrinsics,
+    )
     return 0
 
 

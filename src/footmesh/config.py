@@ -315,6 +315,12 @@ class MeasureConfig:
     """With RGB-D, average the RGB-D network's cues with the depth network's (``cues.predict.average_cues``):
     on 20 guided RGB-D photos the RGB-D cues alone gave length / width MAE 4.06 / 1.75 mm, the depth network's
     2.92 / 2.06 mm (measured with ``footmesh eval measure --views guided``; the average: README)."""
+    focal_prior_log_sd: dict[str, float] = field(default_factory=lambda: {"file": 0.0, "exif": 0.1, "default": 0.7})
+    """How well the photo's focal length is known, by ``Intrinsics.source`` (SD of its log; 0 = held): with a
+    sheet or card in view, the focal length its perspective gives (``cues.reference.focal``) is weighed against
+    it. A guessed one (``default``: a phone's 26 mm-equivalent main camera) is often 2-3x short on real photos
+    (the 2x / 3x lens, zoom, crops): the sheets of ``../shared/real/a4`` (no EXIF) give 1.3-3.1x on the three
+    seen obliquely enough to tell. EXIF's 35 mm equivalent is right unless the photo was cropped."""
     max_reference_separation: float = 3.0
     """A reference object is put beside the foot (the photo guide; the renders place it 110-460 mm from the foot's
     centre): one whose floor puts the fitted foot's centre more than this many foot lengths from the object's is

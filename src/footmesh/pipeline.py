@@ -15,7 +15,7 @@ import os
 import time
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import cv2
 import numpy as np
@@ -36,6 +36,9 @@ from footmesh.report import request_options
 from footmesh.result import FootEntry, MeasureResult
 from footmesh.sizes import shoe_sizes
 from footmesh.uncertainty import measurement_uncertainty
+
+if TYPE_CHECKING:
+    from footmesh.cues.reference import ReferenceObject
 
 log = logging.getLogger("footmesh.pipeline")
 
@@ -342,8 +345,15 @@ def run_pipeline(photo: Photo, side: str, config: MeasureConfig, input: str = "a
     if kind == "rgb":
         feet_mask = np.any([foot.mask for foot in feet], axis=0).astype(np.uint8)
         exclude = cv2.dilate(feet_mask, np.ones((15, 15), np.uint8)) > 0
-        searched = search_reference(rgb, K, exclude_mask=exclude)
+        focal_prior = config.focal_prior_log_sd[photo.intrinsics.source]
+        searched = search_reference(rgb, K, exclude_mask=exclude, focal_prior_log_sd=focal_prior)
         reference = searched.found
+        if reference is not None and abs(reference.K[0, 0] / K[0, 0] - 1.0) > 0.05:
+            notes.append(
+                f"the focal length was taken from the {references.kind(reference.kind).described}'s perspective: "
+                f"{reference.K[0, 0] / K[0, 0]:.2f}x the {photo.intrinsics.source} one (known to "
+                f"{100 * reference.focal_log_sd:.0f} %); pass --intrinsics for exact figures"
+            )
         if reference is None and searched.rejected is not None:
             notes.append(
                 f"a sheet-like object ({100 * searched.rejected_area:.0f} % of the photo) was seen but not taken as "
@@ -355,7 +365,7 @@ def run_pipeline(photo: Photo, side: str, config: MeasureConfig, input: str = "a
     if len(feet) > 1 and side != "auto":
         feet, why = _foot_of_side(feet, side)
         notes.append(why)
-    outcomes: list[tuple[MeasureResult, _Files, Located, Any] | Refusal] = []
+    outcomes: list[tuple[MeasureResult, _Files, Located, Any, np.ndarray] | Refusal] = []
     for located in feet:
         try:
             outcomes.append(
@@ -370,7 +380,7 @@ def run_pipeline(photo: Photo, side: str, config: MeasureConfig, input: str = "a
         raise next(o for o in outcomes if isinstance(o, Refusal))
     if len(outcomes) == 1:
         return measured[0][0], measured[0][1]
-    return _both_feet(outcomes, K, reference, side)
+    return _both_feet(outcomes, reference, side)
 
 
 def _end_on(fit) -> float:
@@ -402,7 +412,7 @@ def _foot_of_side(feet: list[Located], side: str) -> tuple[list[Located], str]:
     )
 
 
-def _both_feet(outcomes: list, K: np.ndarray, reference, requested: str) -> tuple[MeasureResult, _Files]:
+def _both_feet(outcomes: list, reference, requested: str) -> tuple[MeasureResult, _Files]:
     """One result for a photo of two feet: the keys of the foot asked for (``requested`` side) or else of the
     best-measured one, ``feet`` listing both, both drawn on the overlay."""
     measured = [o for o in outcomes if not isinstance(o, Refusal)]
@@ -420,7 +430,7 @@ def _both_feet(outcomes: list, K: np.ndarray, reference, requested: str) -> tupl
         if isinstance(outcome, Refusal):
             feet.append(FootEntry(index=index, measured=False, error=str(outcome)))
             continue
-        other, other_files, located, fit = outcome
+        other, other_files, located, fit, fit_K = outcome
         name = "mask.png" if outcome is primary else f"mask_{index}.png"
         feet.append(
             FootEntry(
@@ -438,7 +448,7 @@ def _both_feet(outcomes: list, K: np.ndarray, reference, requested: str) -> tupl
             )
         )
         if outcome is not primary:
-            overlay = draw_overlay(overlay, located, fit, K, reference)
+            overlay = draw_overlay(overlay, located, fit, fit_K, reference)
             masks.append((name, other_files.mask))
     result = replace(result, feet=tuple(feet))
     fitted_sides = [foot.side for foot in feet if foot.measured]
@@ -470,8 +480,9 @@ def _measure_located(
     reference,
     messages: list[str],
     timings: dict[str, float],
-) -> tuple[MeasureResult, _Files, Located, Any]:
-    """Fit, check and measure one located foot: (result dict, files, the located foot, the fit)."""
+) -> tuple[MeasureResult, _Files, Located, Any, np.ndarray]:
+    """Fit, check and measure one located foot: (result dict, files, the located foot, the fit, the K (3, 3) it
+    was fitted with: the photo's, or the reference's where its perspective corrected the focal length)."""
     from footmesh.fit import FitConfig, FitInit, canonical_measures, fit_foot, mesh_side_residuals
 
     h, w = rgb.shape[:2]
@@ -497,19 +508,20 @@ def _measure_located(
         if max(residuals.values()) >= config.decoder_side_ratio * residuals[nearer]:
             side, side_source = nearer, "decoder"  # told plainly: the other side's fit is not needed
 
-    def fitted(floor: np.ndarray | None):
+    def fitted(on: ReferenceObject | None):
+        """The fit on the floor of the reference ``on`` (with the camera its pose was solved with), or on none."""
         return fit_foot(
             located.cues,
-            K,
+            K if on is None else on.K,
             depth_mm=None if kind == "rgb" else depth,
-            cam_from_floor=floor,
+            cam_from_floor=None if on is None else on.cam_from_floor,
             side=side,
             init=init,
             config=FitConfig(joint_sigma_px=joint_sigma_px(located.crop.side, config)),
         )
 
     seen_reference = reference  # its floor's orientation stays evidence even if its scale is rejected below
-    fit = fitted(None if reference is None else reference.cam_from_floor)
+    fit = fitted(reference)
     length_mm = canonical_measures(fit.shape)[0] if fit.scaled else None
     if reference is None and (refusal := refusals.implausible_length(length_mm, config)) is not None:
         raise refusal
@@ -520,11 +532,13 @@ def _measure_located(
             messages.append(contradicted)
             reference = None
             fit = fitted(None)
+    # the reference's perspective may have corrected a guessed focal length: the camera the fit used
+    photo_K, K = K, (K if reference is None else reference.K)
     timings["fit_s"] = time.perf_counter() - t
     floor = None
     if seen_reference is not None:
         # the floor the reference shows, not the fit, says how end-on a foot lying on it can be seen
-        floor = (seen_reference.kind, floor_end_on_bound(located.mask, K, seen_reference.cam_from_floor))
+        floor = (seen_reference.kind, floor_end_on_bound(located.mask, seen_reference.K, seen_reference.cam_from_floor))
     refusal = refusals.fitted_foot(fit.quality, _end_on(fit), kind, config, floor, scaled=fit.scaled)
     if refusal is not None:
         raise refusal
@@ -566,7 +580,7 @@ def _measure_located(
         version=__version__,
         input_sha256=dict(photo.input_sha256),
         image={"width": int(photo.rgb.shape[1]), "height": int(photo.rgb.shape[0])},
-        intrinsics={**photo.intrinsics.to_dict()},
+        intrinsics=_intrinsics_dict(photo, reference, photo_K),
         depth=None if photo.depth_source is None or kind == "rgb" else photo.depth_source.to_dict(),
         input=kind,
         side=fit.side,
@@ -604,7 +618,28 @@ def _measure_located(
     # the foot's silhouette in photo pixels: nearest-neighbour, so it stays the network's 0/1 decision
     mask = cv2.resize(located.mask.astype(np.uint8) * 255, photo.rgb.shape[1::-1], interpolation=cv2.INTER_NEAREST)
     files = _Files(fit.vertices_cam, canonical, model.faces(fit.side).numpy(), faces, overlay, mask)
-    return result, files, located, fit
+    return result, files, located, fit, K
+
+
+def _intrinsics_dict(photo: Photo, reference: ReferenceObject | None, photo_K: np.ndarray) -> dict:
+    """The photo's intrinsics as result.json gives them: its own, or with the focal length the reference object's
+    perspective gave (source ``reference``; ``photo_K``: the working photo's own camera, before that)."""
+    own = photo.intrinsics.to_dict()
+    if reference is None:
+        return own
+    factor = float(reference.K[0, 0]) / float(photo_K[0, 0])
+    if abs(factor - 1.0) < 1e-9:
+        return own
+    return {
+        **own,
+        "fx": own["fx"] * factor,
+        "fy": own["fy"] * factor,
+        "source": "reference",
+        "note": (
+            f"focal length from the {references.kind(reference.kind).described}'s perspective: {factor:.2f}x the "
+            f"{own['source']} one ({own['fx']:.0f} px), known to {100 * reference.focal_log_sd:.0f} %"
+        ),
+    }
 
 
 def _reference_dict(reference, to_photo: float) -> dict:

@@ -183,8 +183,11 @@ def evaluate_mode(
     progress: bool = True,
     seed: int = EVAL_SEED,
     config: MeasureConfig | None = None,
+    withhold_intrinsics: bool = False,
 ) -> ModeResult:
-    """Measure ``n`` synthetic photos of ``mode`` with the full pipeline (``config``: its settings; default ones)."""
+    """Measure ``n`` synthetic photos of ``mode`` with the full pipeline (``config``: its settings; default ones).
+    ``withhold_intrinsics``: RGB photos are measured without their K.json, as a photo without EXIF is (the
+    pipeline assumes a focal length; with a reference its perspective may correct it)."""
     from tqdm import tqdm
 
     from footmesh.pipeline import measure_photo
@@ -224,7 +227,7 @@ def evaluate_mode(
                     paths["image"],
                     Path(tmp) / f"{i}" / "out",
                     depth=paths.get("depth"),
-                    intrinsics=paths["intrinsics"],
+                    intrinsics=None if withhold_intrinsics and mode in ("rgb_ref", "rgb") else paths["intrinsics"],
                     input={"rgb_ref": "rgb", "rgb": "rgb", "rgbd_heic": "rgbd"}.get(mode, mode),
                     config=config,
                 )
@@ -331,10 +334,12 @@ def run_eval(
     json_out: str | None = None,
     progress: bool = True,
     seed: int = EVAL_SEED,
+    withhold_intrinsics: bool = False,
+    config: MeasureConfig | None = None,
 ) -> str:
     """Evaluate the modes and return the tables (and write per-photo records as JSON)."""
     torch.set_num_threads(max(1, torch.get_num_threads()))
-    results = {m: evaluate_mode(m, n, size, views, progress, seed) for m in modes}
+    results = {m: evaluate_mode(m, n, size, views, progress, seed, config, withhold_intrinsics) for m in modes}
     text = format_tables(results)
     print(text, flush=True)  # before anything that could fail: the numbers took minutes
     if json_out:

@@ -207,6 +207,15 @@ VIEW_PRESETS: dict[str, dict] = {
         other_foot_fraction=0.3,
         rgb_noise_sd=6.0 / 255,
     ),
+    # the guided views through a phone's 2x-3x lens (or a zoomed, cropped photo): a focal length 2-3.5x the main
+    # camera's that a photo without intrinsics does not tell (issue 19: the reference's perspective has to)
+    "tele": dict(
+        fov_deg=(20.0, 36.0),
+        min_azimuth_deg=60.0,
+        max_azimuth_deg=120.0,
+        elevation_deg=(35.0, 75.0),
+        lifted_fraction=0.0,
+    ),
 }
 """Named sets of random views (``footmesh eval measure --views NAME``), each framing the reference object too."""
 

@@ -7,6 +7,7 @@ import math
 import numpy as np
 
 from footmesh import references
+from footmesh.cues.reference import focal
 from footmesh.cues.reference.objects import ReferenceObject
 from footmesh.cues.reference.params import (
     _LOOSEST_COVERAGE,
@@ -30,7 +31,7 @@ from footmesh.cues.reference.params import (
     SIZES_MM,
 )
 from footmesh.cues.reference.pose import _distance, _shape_sd, rectangle_pose
-from footmesh.cues.reference.quads import _classify, _inside, _parallelogram, _signed_area
+from footmesh.cues.reference.quads import _classify, _corner_points_many, _inside, _parallelogram, _signed_area
 from footmesh.cues.reference.sides import (
     _blank_inside,
     _bowed_corners,
@@ -59,9 +60,11 @@ def _finish(
     completed: bool = False,
     first_radius: float = FIRST_RADIUS_PX,
     rejected: list[str] | None = None,
+    focal_prior_log_sd: float = 0.0,
 ) -> tuple[float, ReferenceObject] | None:
     """Refine a rough quad, name it, test it strictly and solve the plane: (score, object) or None (then why,
-    in words, appended to ``rejected``).
+    in words, appended to ``rejected``). ``focal_prior_log_sd`` > 0: K's focal length is known only to this SD
+    (log units) and the rectangle's perspective may correct it (``focal.focal_estimate``).
 
     A marker's quad comes in its local order (``kinds == MARKERS``); a sheet's or card's is put in local
     order once its sides are known. A sheet whose fourth side the rough quad misses (the foot hides a corner,
@@ -82,11 +85,14 @@ def _finish(
         completed=completed,
         first_radius=first_radius,
         rejected=rejected,
+        focal_prior_log_sd=focal_prior_log_sd,
     )
     for sheet_kind in [k for k in SHEETS if k in kinds] if result is None else []:
         for sheet in _complete_sheet(quad, blurred, K, valid, lines=first, size_mm=SIZES_MM[sheet_kind]):
             # the quad's own reason stands: a completion is a guess
-            result = _finish_quad(sheet, [sheet_kind], blurred, K, valid, completed=True)
+            result = _finish_quad(
+                sheet, [sheet_kind], blurred, K, valid, completed=True, focal_prior_log_sd=focal_prior_log_sd
+            )
             if result is not None:
                 return result
     return result
@@ -103,10 +109,11 @@ def _finish_quad(
     completed: bool = False,
     first_radius: float = FIRST_RADIUS_PX,
     rejected: list[str] | None = None,
+    focal_prior_log_sd: float = 0.0,
 ) -> tuple[float, ReferenceObject] | None:
     """``_finish`` without the completion of a sheet (``first``: the sides fitted at ``first_radius``;
     ``completed``: the quad is a sheet completed across a hidden corner; ``rejected``: why the quad is not the
-    object, appended in words when it is not)."""
+    object, appended in words when it is not; ``focal_prior_log_sd``: see ``_finish``)."""
 
     def reject(why: str) -> None:
         if rejected is not None:
@@ -133,10 +140,18 @@ def _finish_quad(
         return reject(f"its sides show along only {100 * coverage.mean():.0f} % of their length (covered)")
     if _curved(residuals, np.linalg.norm(np.roll(corners, -1, axis=0) - corners, axis=1)):
         return reject(f"a side is not straight (scatter {residuals.max():.1f} px: curled, or a curved outline over it)")
+    perturbed = _perturbed_corners(lines)
+    focal_scale, focal_log_sd = 1.0, 0.0
+    if focal_prior_log_sd > 0:
+        # the focal length is a guess: the rectangle's own perspective corrects it, and every test and the pose
+        # below use the corrected one
+        points, good = _corner_points_many(np.stack([corners, *perturbed]), K)
+        if good.all():
+            focal_scale, focal_log_sd = focal.focal_estimate(points[0], points[1:], focal_prior_log_sd)
+            K = focal.with_focal_scale(K, focal_scale)
     shape = _parallelogram(corners, K)
     if shape is None:
         return reject("its corners are no rectangle's image")
-    perturbed = _perturbed_corners(lines)
     ratio_sd, angle_sd = _shape_sd(corners, perturbed, K)
     # small or oblique objects measure their shape less well: the tolerances widen with the corners' noise
     tol_ratio = min(max(ASPECT_TOLERANCE, 3.0 * ratio_sd), MAX_ASPECT_TOLERANCE)
@@ -211,6 +226,8 @@ def _finish_quad(
         corner_sd_px=float(np.sqrt(2.0 * np.mean(corner_var))),
         fit_rel_sd=fit_sd,
         scale_rel_sd=math.sqrt(fit_sd**2 + SIZE_REL_SD[kind] ** 2),
+        K=K,
+        focal_log_sd=focal_log_sd,
         mirrored=mirrored,
     )
     # among candidates of one kind: the best-supported (a sheet: along its paper-to-floor edges), most precise,

@@ -18,10 +18,15 @@ from footmesh.cues.reference.params import (
 
 
 def _detect_marker(
-    image: np.ndarray, blurred: np.ndarray, K: np.ndarray, valid: np.ndarray | None, report: bool = True
+    image: np.ndarray,
+    blurred: np.ndarray,
+    K: np.ndarray,
+    valid: np.ndarray | None,
+    report: bool = True,
+    focal_prior_log_sd: float = 0.0,
 ) -> tuple[ReferenceObject | None, list[np.ndarray]]:
     """The ArUco marker (DICT_4X4_50, id 0), read upright or in the mirror image (None unless ``report``), and
-    the (4, 2) px quads of every marker seen (any id)."""
+    the (4, 2) px quads of every marker seen (any id). ``focal_prior_log_sd``: see ``search_reference``."""
     grey = cv2.cvtColor((image * 255.0 + 0.5).astype(np.uint8), cv2.COLOR_RGB2GRAY)
     params = cv2.aruco.DetectorParameters()
     params.cornerRefinementMethod = cv2.aruco.CORNER_REFINE_SUBPIX
@@ -48,7 +53,16 @@ def _detect_marker(
             cell = float(np.mean(np.linalg.norm(np.roll(ordered, -1, axis=0) - ordered, axis=1))) / MARKER_CELLS
             wider = [r * cell for r in MARKER_RETRY_RADII_CELLS if r * cell > FIRST_RADIUS_PX]
             for radius in (FIRST_RADIUS_PX, *wider):
-                found = _finish(ordered, MARKERS, blurred, K, valid, mirrored=mirrored, first_radius=radius)
+                found = _finish(
+                    ordered,
+                    MARKERS,
+                    blurred,
+                    K,
+                    valid,
+                    mirrored=mirrored,
+                    first_radius=radius,
+                    focal_prior_log_sd=focal_prior_log_sd,
+                )
                 if found is not None:
                     return found[1], seen
     return None, seen

@@ -21,7 +21,10 @@ class ReferenceObject:
     projected with the pose; ``corner_sd_px``: estimated SD of a corner's position (from the line fits);
     ``fit_rel_sd``: relative SD of the camera-to-object distance from the corners' noise alone;
     ``scale_rel_sd``: the same with the object's size tolerance (``SIZE_REL_SD``) added, the relative SD of every
-    length measured through this plane; ``mirrored``: the marker was read in the mirror image.
+    length measured through this plane; ``K`` (3, 3): the intrinsics the pose was solved with (the caller's, or,
+    where their focal length was a guess, with the focal length the rectangle's perspective gives:
+    ``focal.focal_estimate``); ``focal_log_sd``: the SD of that focal length's log (0: the caller's, held);
+    ``mirrored``: the marker was read in the mirror image.
     """
 
     kind: str
@@ -32,6 +35,8 @@ class ReferenceObject:
     corner_sd_px: float
     fit_rel_sd: float
     scale_rel_sd: float
+    K: np.ndarray
+    focal_log_sd: float = 0.0
     mirrored: bool = False
 
     @property

@@ -8,6 +8,7 @@ import math
 import cv2
 import numpy as np
 
+from footmesh.cues.reference import focal
 from footmesh.cues.reference.params import (
     _COMBINATIONS,
     _KERNEL3,
@@ -65,12 +66,18 @@ def _check_intrinsics(K: np.ndarray) -> np.ndarray:
 
 
 def _candidate_groups(
-    blurred: np.ndarray, K: np.ndarray, kinds: list[str], regions: str, seen: set[tuple[int, ...]]
+    blurred: np.ndarray,
+    K: np.ndarray,
+    kinds: list[str],
+    regions: str,
+    seen: set[tuple[int, ...]],
+    free_focal: bool = False,
 ) -> list[list[np.ndarray]]:
     """Rough (4, 2) px quadrilaterals (canonical order) that might be one of ``kinds``, from the outlines of
     ``regions``: "sheet" (bright in every channel) or "card" (thresholds of the grey level and of each channel,
     either way, and edges); in groups to try in turn: the quads the outlines make, then (sheets) those made by
-    completing a hidden corner. Near duplicates of each other and of the keys in ``seen`` (updated) are left out."""
+    completing a hidden corner. Near duplicates of each other and of the keys in ``seen`` (updated) are left out.
+    ``free_focal``: K's focal length is a guess; each quad is tested at the one that suits it best (``focal``)."""
     if regions not in ("sheet", "card"):
         raise ValueError(f"regions must be 'sheet' or 'card', got {regions!r}")
     h, w = blurred.shape[:2]
@@ -143,7 +150,7 @@ def _candidate_groups(
     rough, source = _canonical_many(rough[keep]), source[keep]
     keep = np.isfinite(rough).all(axis=(1, 2))
     rough, source = rough[keep], source[keep]
-    passed = _classify_many(rough, K, RECTANGLES, 2 * LOOSE_FACTOR)
+    passed = _classify_many(rough, K, RECTANGLES, 2 * LOOSE_FACTOR, free_focal)
     quads: list[np.ndarray] = []
     if passed.any():
         shape_ok, src = rough[passed], source[passed]
@@ -154,7 +161,7 @@ def _candidate_groups(
             quad = _fit_sides_to_points(shape_ok[i], polygons[src[i]][2].reshape(-1, 2).astype(np.float64))
             if quad is None or not _inside(quad, h, w) or (quad := _canonical(quad)) is None:
                 continue
-            if _classify(quad, K, kinds, loose=LOOSE_FACTOR) is None:
+            if _classify(quad, _free_focal_K(quad, K) if free_focal else K, kinds, loose=LOOSE_FACTOR) is None:
                 continue
             key = tuple(np.round(quad / 2.0).astype(int).ravel().tolist())
             if key not in seen:
@@ -372,13 +379,12 @@ def _canonical_many(quads: np.ndarray) -> np.ndarray:
     return quads
 
 
-def _parallelogram_many(quads: np.ndarray, K: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Metric shape of the plane parallelograms whose images are the (M, 4, 2) quads: side ratio
-    |P1 - P0| / |P3 - P0| (M,), angle at P0 in degrees (M,), depths (M, 4) up to a common scale, and whether the
-    solution exists with every corner in front of the camera (M,).
+def _corner_points_many(quads: np.ndarray, K: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The plane parallelograms whose images are the (M, 4, 2) quads: corner points (M, 4, 3) up to a common scale
+    per quad (the first at depth 1), and whether the solution exists with every corner in front of the camera (M,).
 
     With rays r_i = K^-1 (u_i, v_i, 1), depths l_i with l0 r0 + l2 r2 = l1 r1 + l3 r3 (the diagonals bisect each
-    other) are unique up to scale: a rectangle's image gives a right angle and its true side ratio.
+    other) are unique up to scale, and do not depend on the focal length (``focal``).
     """
     rays = pixel_rays(quads, K)  # (M, 4, 3), z = 1
     a = np.stack([rays[:, 1], -rays[:, 2], rays[:, 3]], axis=2)  # (M, 3, 3): columns r1, -r2, r3
@@ -387,12 +393,34 @@ def _parallelogram_many(quads: np.ndarray, K: np.ndarray) -> tuple[np.ndarray, n
     lam = np.linalg.solve(a, rays[:, 0][..., None])[..., 0]  # (M, 3)
     depths = np.concatenate([np.ones((len(quads), 1)), lam], axis=1)
     good &= (lam > 0).all(axis=1)
-    pts = rays * depths[..., None]
+    return rays * depths[..., None], good
+
+
+def _parallelogram_many(
+    quads: np.ndarray, K: np.ndarray, free_focal: bool = False
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Metric shape of the plane parallelograms whose images are the (M, 4, 2) quads: side ratio
+    |P1 - P0| / |P3 - P0| (M,), angle at P0 in degrees (M,), depths (M, 4) up to a common scale, and whether the
+    solution exists with every corner in front of the camera (M,): a rectangle's image gives a right angle and its
+    true side ratio. ``free_focal``: each quad seen with the focal length (within ``focal.FOCAL_RANGE`` of K's)
+    that makes its corner most nearly a right angle (K's focal length is a guess).
+    """
+    pts, good = _corner_points_many(quads, K)
+    depths = pts[..., 2].copy()
+    if free_focal:
+        pts[..., :2] /= focal.clamped_scale(pts)[:, None, None]
     side_a, side_b = pts[:, 1] - pts[:, 0], pts[:, 3] - pts[:, 0]
     na, nb = np.linalg.norm(side_a, axis=1), np.linalg.norm(side_b, axis=1)
     with np.errstate(divide="ignore", invalid="ignore"):
         cos = np.clip(np.sum(side_a * side_b, axis=1) / (na * nb), -1.0, 1.0)
         return na / nb, np.degrees(np.arccos(cos)), depths, good & np.isfinite(cos)
+
+
+def _free_focal_K(quad: np.ndarray, K: np.ndarray) -> np.ndarray:
+    """K with the focal length (within ``focal.FOCAL_RANGE`` of its own) that makes the (4, 2) quad's corner most
+    nearly a right angle."""
+    pts, _ = _corner_points_many(quad[None], K)
+    return focal.with_focal_scale(K, float(focal.clamped_scale(pts)[0]))
 
 
 def _parallelogram(quad: np.ndarray, K: np.ndarray) -> tuple[float, float, np.ndarray] | None:
@@ -427,12 +455,14 @@ def _parallelogram(quad: np.ndarray, K: np.ndarray) -> tuple[float, float, np.nd
     return na / nb, math.degrees(math.acos(cos)), np.array([1.0, *lam])
 
 
-def _classify_many(quads: np.ndarray, K: np.ndarray, kinds: list[str], loose: float) -> np.ndarray:
+def _classify_many(
+    quads: np.ndarray, K: np.ndarray, kinds: list[str], loose: float, free_focal: bool = False
+) -> np.ndarray:
     """(M,) bool: the metric test (with tolerances ``loose`` times wider) names each (M, 4, 2) quad one of
-    ``kinds``."""
+    ``kinds`` (``free_focal``: see ``_parallelogram_many``)."""
     if len(quads) == 0:
         return np.zeros(0, dtype=bool)
-    ratio, angle, _, good = _parallelogram_many(quads, K)
+    ratio, angle, _, good = _parallelogram_many(quads, K, free_focal)
     with np.errstate(divide="ignore", invalid="ignore"):
         log_ratio = np.abs(np.log(ratio))
     good &= np.abs(angle - 90.0) <= ANGLE_TOLERANCE_DEG * loose

@@ -22,10 +22,11 @@ def detect_reference(
     K: np.ndarray,
     kinds: tuple[str, ...] | list[str] = KINDS,
     exclude_mask: np.ndarray | None = None,
+    focal_prior_log_sd: float = 0.0,
 ) -> ReferenceObject | None:
     """Find a reference object lying on the floor and the floor plane it gives; None when none is convincing
     (``search_reference``'s ``found``)."""
-    return search_reference(rgb, K, kinds, exclude_mask).found
+    return search_reference(rgb, K, kinds, exclude_mask, focal_prior_log_sd).found
 
 
 def search_reference(
@@ -33,6 +34,7 @@ def search_reference(
     K: np.ndarray,
     kinds: tuple[str, ...] | list[str] = KINDS,
     exclude_mask: np.ndarray | None = None,
+    focal_prior_log_sd: float = 0.0,
 ) -> ReferenceSearch:
     """Find a reference object lying on the floor and the floor plane it gives, or say why none was taken.
 
@@ -43,6 +45,9 @@ def search_reference(
             A4 sheet, then the card, whatever the order given.
         exclude_mask: optional (H, W) bool, pixels not to take edges from (e.g. the foot and leg): an edge there
             neither supports nor contradicts a side.
+        focal_prior_log_sd: 0 when K's focal length is known; else the SD of its log (a guess, or a photo's EXIF):
+            a sheet or card is then tested at the focal length that suits it, and found with the focal length its
+            perspective gives (``ReferenceObject.K``; ``focal``).
 
     Returns:
         ``ReferenceSearch``: the ``ReferenceObject`` (None: the caller reports the result as unscaled) and, when
@@ -63,7 +68,9 @@ def search_reference(
         # edges right next to the masked object are its own outline, not the reference's
         valid = cv2.dilate(exclude_mask.astype(np.uint8), _KERNEL5) == 0
     blurred = cv2.GaussianBlur(image, (0, 0), BLUR_SIGMA_PX)
-    found, markers = _detect_marker(image, blurred, K, valid, report=bool(references.with_detector("marker", kinds)))
+    found, markers = _detect_marker(
+        image, blurred, K, valid, bool(references.with_detector("marker", kinds)), focal_prior_log_sd
+    )
     if found is not None:
         return ReferenceSearch(found)
     wanted = [k for k in RECTANGLES if k in kinds]
@@ -72,14 +79,15 @@ def search_reference(
     # a marker's cells are rectangles too: nothing is taken from the printed sheet of any marker seen
     sheets = [(q - q.mean(axis=0)) * MARKER_SHEET_SCALE + q.mean(axis=0) for q in markers]
     seen: set[tuple[int, ...]] = set()  # rough quads already listed (both searches)
-    sheet_groups = _candidate_groups(blurred, K, wanted, "sheet", seen) if set(wanted) & set(SHEETS) else []
+    free_focal = focal_prior_log_sd > 0
+    sheet_groups = _candidate_groups(blurred, K, wanted, "sheet", seen, free_focal) if set(wanted) & set(SHEETS) else []
 
     @functools.cache
     def card_groups() -> list[list[np.ndarray]]:
         # listed only when a sheet's own quads gave none (most of a card search's time, wasted beside a sheet)
-        return _candidate_groups(blurred, K, wanted, "card", seen) if set(wanted) - set(SHEETS) else []
+        return _candidate_groups(blurred, K, wanted, "card", seen, free_focal) if set(wanted) - set(SHEETS) else []
 
-    searched = _try_groups(sheet_groups, card_groups, sheets, wanted, blurred, K, valid)
+    searched = _try_groups(sheet_groups, card_groups, sheets, wanted, blurred, K, valid, None, focal_prior_log_sd)
     if searched.found is not None:
         return searched
     if valid is not None:
@@ -88,7 +96,7 @@ def search_reference(
         # the sides' own tests (straight, supported, not running on) still hold without it; but the foot's own
         # lit skin is no sheet: what the mask leaves of a sheet must be paper
         masked = exclude_mask.astype(bool)
-        again = _try_groups(sheet_groups, card_groups, sheets, wanted, blurred, K, None, masked)
+        again = _try_groups(sheet_groups, card_groups, sheets, wanted, blurred, K, None, masked, focal_prior_log_sd)
         if again.found is not None:
             return again
     return ReferenceSearch(None, searched.rejected, searched.rejected_area / (h * w))
@@ -103,11 +111,13 @@ def _try_groups(
     K: np.ndarray,
     valid: np.ndarray | None,
     masked: np.ndarray | None = None,
+    focal_prior_log_sd: float = 0.0,
 ) -> ReferenceSearch:
     """Refine and test the rough quads of ``_candidate_groups`` in turn (the cards' listed by ``card_groups()``
     once no sheet was found among the sheets' own): the A4 sheet found, else the card, else
     (``rejected_area`` in px here) why the largest rough quad was rejected. Quads over a marker's printed sheet
-    (``sheets``) are skipped, and objects found more than ``MAX_MASKED_SHARE`` inside ``masked`` (H, W) bool."""
+    (``sheets``) are skipped, and objects found more than ``MAX_MASKED_SHARE`` inside ``masked`` (H, W) bool.
+    ``focal_prior_log_sd``: see ``search_reference``."""
     best: dict[str, tuple[float, ReferenceObject]] = {}
     accepted: list[np.ndarray] = []  # corners already found, in canonical order
     largest_rejected: list[tuple[float, str]] = []  # (area px, why) of the largest rough quad rejected
@@ -121,7 +131,16 @@ def _try_groups(
             if any(_overlaps(quad, sheet) for sheet in sheets):
                 continue
             why: list[str] = []
-            result = _finish(quad, wanted, blurred, K, valid, completed=completed, rejected=why)
+            result = _finish(
+                quad,
+                wanted,
+                blurred,
+                K,
+                valid,
+                completed=completed,
+                rejected=why,
+                focal_prior_log_sd=focal_prior_log_sd,
+            )
             if result is None:
                 area = abs(_signed_area(quad))
                 if why and (not largest_rejected or area > largest_rejected[0][0]):
