@@ -48,7 +48,9 @@ class MeasureResult:
 
     input_sha256: dict[str, str] = _doc("SHA-256 of the image (and depth map, K.json)")
     image: dict[str, int] = _doc("{width, height} of the upright photo")
-    intrinsics: dict[str, Any] = _doc("{fx, fy, cx, cy, width, height, source, note}; source: file, exif, default")
+    intrinsics: dict[str, Any] = _doc(
+        "{fx, fy, cx, cy, width, height, source, note}; source: file, exif, default, reference"
+    )
     depth: dict[str, Any] | None = _doc("where the depth came from (a --depth file or the photo's own), or null")
     input: str = _doc("networks used: rgb, rgbd or depth")
     side: str = _doc("left or right")

@@ -9,8 +9,8 @@ import math
 import numpy as np
 import pytest
 
-from footmesh.cues.reference import search_reference
 from footmesh.cues.reference import focal as focal_mod
+from footmesh.cues.reference import search_reference
 from footmesh.cues.reference.quads import _corner_points_many
 from footmesh.synth.render import Renderer
 from footmesh.synth.scene import view_config

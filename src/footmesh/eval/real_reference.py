@@ -94,7 +94,8 @@ def pipeline_search(path: str | os.PathLike):
     feet_mask = np.any([foot.mask for foot in feet], axis=0).astype(np.uint8)
     exclude = cv2.dilate(feet_mask, np.ones((DILATE_PX, DILATE_PX), np.uint8)) > 0
     start = time.perf_counter()
-    searched = search_reference(rgb, camera.K, exclude_mask=exclude)
+    focal_prior = config.focal_prior_log_sd[photo.intrinsics.source]
+    searched = search_reference(rgb, camera.K, exclude_mask=exclude, focal_prior_log_sd=focal_prior)
     return photo, camera.K, to_photo, searched, time.perf_counter() - start
 
 
@@ -118,7 +119,8 @@ def score_photo(path: str | os.PathLike, marked_px: np.ndarray) -> RealReference
         return RealReferenceScore(Path(path).name, None, nan4, float("nan"), float("nan"), searched.rejected, seconds)
     to_marked = MARKED_SIDE_PX / max(photo.rgb.shape[:2])
     errors = matched_corner_errors(found.corners_px * to_photo * to_marked, marked_px)
-    truth = sheet_centre_distance_mm(marked_px / (to_photo * to_marked), K)
+    # at the camera the object was found with (its perspective may have corrected a guessed focal length)
+    truth = sheet_centre_distance_mm(marked_px / (to_photo * to_marked), found.K)
     return RealReferenceScore(
         photo=Path(path).name,
         kind=found.kind,
