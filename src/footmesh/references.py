@@ -47,6 +47,10 @@ class ReferenceKind:
     """Share of the samples of a ``--reference mixed`` dataset that show it."""
     margin_mm: float = 0.0
     """Drawn (white) margin around the stored rectangle: the printed sheet around a marker's square."""
+    calibrates_focal: bool = True
+    """Found in a photo whose focal length is a guess, its perspective may correct it (``cues.reference.focal``).
+    Not a card: small (its corners fix the focal length poorly) and of any print, so with the focal length free
+    single tile cells of patterned floors passed as cards (7 of the 80 photos of ``../shared/real/rafiansyah``)."""
 
     @property
     def aspect(self) -> float:
@@ -87,6 +91,7 @@ KINDS: tuple[ReferenceKind, ...] = (
         dataset_id=2,
         look="card",
         synth_share=0.2,
+        calibrates_focal=False,
     ),
     ReferenceKind(
         "marker",

@@ -17,6 +17,7 @@ from footmesh.cues.reference.params import (
     COMPLETED_MIN_SIDE_SUPPORT,
     DISTANCE_RANGE_MM,
     FIRST_RADIUS_PX,
+    FOCAL_KINDS,
     MAX_ANGLE_TOLERANCE_DEG,
     MAX_ASPECT_TOLERANCE,
     MAX_SCALE_REL_SD,
@@ -90,9 +91,8 @@ def _finish(
     for sheet_kind in [k for k in SHEETS if k in kinds] if result is None else []:
         for sheet in _complete_sheet(quad, blurred, K, valid, lines=first, size_mm=SIZES_MM[sheet_kind]):
             # the quad's own reason stands: a completion is a guess
-            result = _finish_quad(
-                sheet, [sheet_kind], blurred, K, valid, completed=True, focal_prior_log_sd=focal_prior_log_sd
-            )
+            # completed with K's focal length: a completion's perspective says nothing of its own
+            result = _finish_quad(sheet, [sheet_kind], blurred, K, valid, completed=True)
             if result is not None:
                 return result
     return result
@@ -141,7 +141,7 @@ def _finish_quad(
     if _curved(residuals, np.linalg.norm(np.roll(corners, -1, axis=0) - corners, axis=1)):
         return reject(f"a side is not straight (scatter {residuals.max():.1f} px: curled, or a curved outline over it)")
     perturbed = _perturbed_corners(lines)
-    focal_scale, focal_log_sd = 1.0, 0.0
+    focal_scale, focal_log_sd, held_K = 1.0, 0.0, K
     if focal_prior_log_sd > 0:
         # the focal length is a guess: the rectangle's own perspective corrects it, and every test and the pose
         # below use the corrected one
@@ -171,6 +171,21 @@ def _finish_quad(
                 f"{angle:.1f} deg; the photo's focal length may be wrong)"
             )
         kind, start = found
+    if focal_scale != 1.0 and kind not in FOCAL_KINDS:
+        # named at a corrected focal length, but of a kind that may not correct it: tested again at K's own
+        return _finish_quad(
+            quad,
+            kinds,
+            blurred,
+            held_K,
+            valid,
+            mirrored,
+            first,
+            completed,
+            first_radius,
+            rejected,
+            focal_prior_log_sd=0.0,
+        )
     sheet = kind in SHEETS
     if coverage.min() < MIN_COVERAGE[kind][0] or coverage.mean() < MIN_COVERAGE[kind][1]:
         return reject(f"its sides show along only {100 * coverage.mean():.0f} % of their length (covered)")

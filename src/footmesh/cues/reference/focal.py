@@ -19,9 +19,10 @@ import math
 
 import numpy as np
 
-FOCAL_RANGE = (0.4, 6.0)
-"""The focal lengths considered, in multiples of the caller's: a phone's 0.5x ultra-wide to its 5x telephoto
-and crops of it."""
+FOCAL_RANGE = (0.7, 5.0)
+"""The focal lengths considered, in multiples of the caller's: a main camera a little wider than the one assumed
+to a 5x telephoto (or a crop of the 2x / 3x). Not the 0.5x ultra-wide: rarely used for a foot, and with the
+range down to 0.4x two patterned rectangles of ``../shared/real/rafiansyah`` passed as A4 sheets at 0.45-0.57x."""
 ANGLE_TRUST_DEG = 1.0
 """A real sheet's corner angle, as the photo shows it, is trusted to this much beyond its corners' own noise
 (paper bows and curls, lenses keep some distortion): it bounds how well the angle fixes the focal length."""

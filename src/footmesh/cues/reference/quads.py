@@ -19,6 +19,7 @@ from footmesh.cues.reference.params import (
     ASPECT_TOLERANCE,
     BORDER_MARGIN_PX,
     END_SKIP,
+    FOCAL_KINDS,
     LOOSE_FACTOR,
     MAX_HIDDEN_AREA_RATIO,
     MAX_HULL_SIDES,
@@ -77,7 +78,8 @@ def _candidate_groups(
     ``regions``: "sheet" (bright in every channel) or "card" (thresholds of the grey level and of each channel,
     either way, and edges); in groups to try in turn: the quads the outlines make, then (sheets) those made by
     completing a hidden corner. Near duplicates of each other and of the keys in ``seen`` (updated) are left out.
-    ``free_focal``: K's focal length is a guess; each quad is tested at the one that suits it best (``focal``)."""
+    ``free_focal``: K's focal length is a guess; each quad is also tested, for the kinds whose perspective may
+    correct it (``FOCAL_KINDS``), at the focal length that suits it best (``focal``)."""
     if regions not in ("sheet", "card"):
         raise ValueError(f"regions must be 'sheet' or 'card', got {regions!r}")
     h, w = blurred.shape[:2]
@@ -150,7 +152,10 @@ def _candidate_groups(
     rough, source = _canonical_many(rough[keep]), source[keep]
     keep = np.isfinite(rough).all(axis=(1, 2))
     rough, source = rough[keep], source[keep]
-    passed = _classify_many(rough, K, RECTANGLES, 2 * LOOSE_FACTOR, free_focal)
+    passed = _classify_many(rough, K, RECTANGLES, 2 * LOOSE_FACTOR)
+    focal_kinds = [k for k in RECTANGLES if k in FOCAL_KINDS]
+    if free_focal:
+        passed |= _classify_many(rough, K, focal_kinds, 2 * LOOSE_FACTOR, free_focal=True)
     quads: list[np.ndarray] = []
     if passed.any():
         shape_ok, src = rough[passed], source[passed]
@@ -161,7 +166,8 @@ def _candidate_groups(
             quad = _fit_sides_to_points(shape_ok[i], polygons[src[i]][2].reshape(-1, 2).astype(np.float64))
             if quad is None or not _inside(quad, h, w) or (quad := _canonical(quad)) is None:
                 continue
-            if _classify(quad, _free_focal_K(quad, K) if free_focal else K, kinds, loose=LOOSE_FACTOR) is None:
+            held = _classify(quad, K, kinds, loose=LOOSE_FACTOR) is None
+            if held and (not free_focal or _classify(quad, _free_focal_K(quad, K), focal_kinds, LOOSE_FACTOR) is None):
                 continue
             key = tuple(np.round(quad / 2.0).astype(int).ravel().tolist())
             if key not in seen:
