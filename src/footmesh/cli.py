@@ -260,6 +260,12 @@ def _add_synth_command(sub: argparse._SubParsersAction) -> None:
         help="share of views from above and behind the heels, down the legs (as one photographs one's own feet)",
     )
     synth.add_argument("--workers", type=int, default=1, help="rendering processes (default 1)")
+    synth.add_argument(
+        "--threads",
+        type=int,
+        default=None,
+        help="rendering threads in each process (default: one per core with --workers 1, else 1)",
+    )
     synth.add_argument("--preview", type=int, metavar="N", help="write a contact sheet of N samples to --out")
     synth.add_argument("--no-progress", action="store_true", help="no progress bar")
     synth.set_defaults(func=_run_synth)
@@ -280,6 +286,8 @@ def _run_synth(args: argparse.Namespace) -> int:
         raise InputError(str(exc)) from None
     if args.workers < 1:
         raise InputError(f"--workers must be at least 1, got {args.workers}")
+    if args.threads is not None and args.threads < 1:
+        raise InputError(f"--threads must be at least 1, got {args.threads}")
     if args.preview is not None:
         from footmesh.synth.preview import write_preview
         from footmesh.synth.render import Renderer
@@ -307,6 +315,7 @@ def _run_synth(args: argparse.Namespace) -> int:
         args.shard_index,
         workers=args.workers,
         progress=not args.no_progress,
+        threads=args.threads,
     )
     log.info("wrote %d chunk files into %s (shard %d of %d)", len(written), args.out, args.shard_index, args.shards)
     return 0

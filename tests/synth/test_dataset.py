@@ -33,9 +33,9 @@ def test_shards_partition_the_chunks():
 
 def test_files_do_not_depend_on_the_shard_count(tmp_path):
     one, two = tmp_path / "one", tmp_path / "two"
-    ds.generate(one, 5, seed=1, config=CONFIG, progress=False, chunk=2)
-    for i in range(2):
-        ds.generate(two, 5, seed=1, config=CONFIG, shards=2, shard_index=i, progress=False, chunk=2)
+    ds.generate(one, 5, seed=1, config=CONFIG, progress=False, chunk=2, threads=1)
+    for i in range(2):  # and rendered by three threads each
+        ds.generate(two, 5, seed=1, config=CONFIG, shards=2, shard_index=i, progress=False, chunk=2, threads=3)
     names = sorted(p.name for p in one.iterdir())
     assert (
         names

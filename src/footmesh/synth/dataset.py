@@ -47,7 +47,7 @@ from __future__ import annotations
 import json
 import os
 import zipfile
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import asdict
 from pathlib import Path
 
@@ -134,72 +134,135 @@ def generate(
     workers: int = 1,
     progress: bool = True,
     chunk: int = CHUNK,
+    threads: int | None = None,
 ) -> list[Path]:
     """Write this shard's chunks of a dataset into ``out``; complete chunks already there are skipped.
+
+    ``workers`` processes render (default 1: this one); within one process ``threads`` threads render samples
+    side by side (default: one per core when ``workers`` is 1, else 1; the compiled kernels, numpy and torch
+    release the GIL), while another thread compresses and writes the previous chunk. The files are the same
+    whatever ``workers`` and ``threads`` (each sample is a function of (seed, index) alone; tested).
 
     Returns:
         the chunk files written by this call.
     """
     config = config or SynthConfig()
+    if threads is None:
+        threads = (os.cpu_count() or 1) if workers == 1 else 1
+    if threads < 1:
+        raise ValueError(f"threads must be at least 1, got {threads}")
     out_dir = Path(out)
     chunks = shard_chunks(n, shards, shard_index, chunk)
     out_dir.mkdir(parents=True, exist_ok=True)
     check_meta(out_dir, make_meta(config, n, seed, chunk))
     todo = [c for c in chunks if not (out_dir / chunk_name(c)).is_file()]
     total = sum(len(chunk_indices(c, n, chunk)) for c in todo)
+    from concurrent.futures import ThreadPoolExecutor
+
     from tqdm import tqdm
 
     written = []
-    with tqdm(total=total, unit="sample", disable=not progress, desc=f"shard {shard_index}/{shards}") as bar:
-        render = _renderer_pool(config, seed, workers)
+    with (
+        tqdm(total=total, unit="sample", disable=not progress, desc=f"shard {shard_index}/{shards}") as bar,
+        ThreadPoolExecutor(1, thread_name_prefix="footmesh-synth-write") as writer,
+    ):
+        render = _renderer_pool(config, seed, workers, threads)
+        pending = None  # the chunk being written while the next one renders (two chunks in memory at most)
         try:
+            samples_of = render.map([i for c in todo for i in chunk_indices(c, n, chunk)])
             for c in todo:
                 samples = []
-                for sample in render.map(list(chunk_indices(c, n, chunk))):
-                    samples.append(sample)
+                for _ in chunk_indices(c, n, chunk):
+                    samples.append(next(samples_of))
                     bar.update(1)
-                write_chunk(out_dir / chunk_name(c), samples)
-                written.append(out_dir / chunk_name(c))
+                if pending is not None:
+                    written.append(pending.result())
+                pending = writer.submit(_write_chunk_to, out_dir / chunk_name(c), samples)
+            if pending is not None:
+                written.append(pending.result())
         finally:
             render.close()
     return written
 
 
-class _renderer_pool:  # noqa: N801 (a small callable helper)
-    """``map(indices) -> samples in order``, in this process or in ``workers`` processes."""
+def _write_chunk_to(path: Path, samples: list[dict[str, np.ndarray]]) -> Path:
+    write_chunk(path, samples)
+    return path
 
-    def __init__(self, config: SynthConfig, seed: int, workers: int) -> None:
+
+class _renderer_pool:  # noqa: N801 (a small callable helper)
+    """``map(indices) -> samples in order``: in this process (``threads`` threads) or in ``workers`` processes."""
+
+    def __init__(self, config: SynthConfig, seed: int, workers: int, threads: int = 1) -> None:
         self.seed = seed
-        self.pool = None
+        self.pool = self.threads = None
         if workers > 1:
             import multiprocessing as mp
 
             self.pool = mp.get_context("spawn").Pool(workers, initializer=_init_worker, initargs=(config,))
-        else:
-            _init_worker(config)
+            return
+        _init_worker(config)
+        if threads > 1:
+            from concurrent.futures import ThreadPoolExecutor
 
-    def map(self, indices: list[int]) -> Iterable[dict[str, np.ndarray]]:
+            self.threads = ThreadPoolExecutor(threads, thread_name_prefix="footmesh-synth", initializer=_limit_threads)
+        self.window = 4 * threads
+
+    def map(self, indices: list[int]) -> Iterator[dict[str, np.ndarray]]:
         args = [(self.seed, i) for i in indices]
-        if self.pool is None:
-            return map(_render_one, args)
-        return self.pool.imap(_render_one, args, chunksize=4)
+        if self.pool is not None:
+            return self.pool.imap(_render_one, args, chunksize=4)
+        if self.threads is not None:
+            return _ordered_map(self.threads, _render_one, args, self.window)
+        return map(_render_one, args)
 
     def close(self) -> None:
         if self.pool is not None:
             self.pool.close()
             self.pool.join()
+        if self.threads is not None:
+            self.threads.shutdown(cancel_futures=True)
+
+
+def _ordered_map(executor, func: Callable, args: list, window: int) -> Iterator:
+    """``map(func, args)`` on ``executor``, in order, with at most ``window`` calls submitted ahead."""
+    from collections import deque
+
+    queue: deque = deque()
+    it = iter(args)
+    for a in it:
+        queue.append(executor.submit(func, a))
+        if len(queue) >= window:
+            break
+    while queue:
+        result = queue.popleft().result()
+        for a in it:
+            queue.append(executor.submit(func, a))
+            break
+        yield result
 
 
 _WORKER_RENDERER = None
 
 
-def _init_worker(config: SynthConfig) -> None:
-    global _WORKER_RENDERER
+def _limit_threads() -> None:
+    """One thread for torch, OpenMP and BLAS, set from the calling thread.
+
+    OpenMP's thread count is a per-thread setting: a thread that does not set it runs its first torch matrix
+    product (MKL) on every core, whose sums come out in another order (different bits).
+    """
+    import torch
     from threadpoolctl import threadpool_limits
 
+    threadpool_limits(1)
+    torch.set_num_threads(1)
+
+
+def _init_worker(config: SynthConfig) -> None:
+    global _WORKER_RENDERER
     from footmesh.synth.render import Renderer
 
-    threadpool_limits(1)
+    _limit_threads()
     _WORKER_RENDERER = Renderer(config)
 
 
