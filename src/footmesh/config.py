@@ -321,6 +321,11 @@ class MeasureConfig:
     it. A guessed one (``default``: a phone's 26 mm-equivalent main camera) is often 2-3x short on real photos
     (the 2x / 3x lens, zoom, crops): the sheets of ``../shared/real/a4`` (no EXIF) give 1.3-3.1x on the three
     seen obliquely enough to tell. EXIF's 35 mm equivalent is right unless the photo was cropped."""
+    flat_refit_upright_robust: float = 1e3
+    """A plain photo whose fit lifts the foot off the floor a reference shows (``refusals.heel_hidden``) is
+    fitted again with the foot held upright on that floor: the fit's upright term (``FitConfig.upright_robust``)
+    then this many sigmas wide, least squares in effect (normally it lets a foot tilted past 0.15 rad go). The
+    refusal stands only if that fit fails too."""
     max_reference_separation: float = 3.0
     """A reference object is put beside the foot (the photo guide; the renders place it 110-460 mm from the foot's
     centre): one whose floor puts the fitted foot's centre more than this many foot lengths from the object's is

@@ -508,8 +508,12 @@ def _measure_located(
         if max(residuals.values()) >= config.decoder_side_ratio * residuals[nearer]:
             side, side_source = nearer, "decoder"  # told plainly: the other side's fit is not needed
 
-    def fitted(on: ReferenceObject | None):
-        """The fit on the floor of the reference ``on`` (with the camera its pose was solved with), or on none."""
+    def fitted(on: ReferenceObject | None, flat: bool = False):
+        """The fit on the floor of the reference ``on`` (with the camera its pose was solved with), or on none;
+        ``flat``: held upright on that floor (``MeasureConfig.flat_refit_upright_robust``)."""
+        fit_config = FitConfig(joint_sigma_px=joint_sigma_px(located.crop.side, config))
+        if flat:
+            fit_config = replace(fit_config, upright_robust=config.flat_refit_upright_robust)
         return fit_foot(
             located.cues,
             K if on is None else on.K,
@@ -517,7 +521,7 @@ def _measure_located(
             cam_from_floor=None if on is None else on.cam_from_floor,
             side=side,
             init=init,
-            config=FitConfig(joint_sigma_px=joint_sigma_px(located.crop.side, config)),
+            config=fit_config,
         )
 
     seen_reference = reference  # its floor's orientation stays evidence even if its scale is rejected below
@@ -534,11 +538,22 @@ def _measure_located(
             fit = fitted(None)
     # the reference's perspective may have corrected a guessed focal length: the camera the fit used
     photo_K, K = K, (K if reference is None else reference.K)
-    timings["fit_s"] = time.perf_counter() - t
     floor = None
     if seen_reference is not None:
         # the floor the reference shows, not the fit, says how end-on a foot lying on it can be seen
         floor = (seen_reference.kind, floor_end_on_bound(located.mask, seen_reference.K, seen_reference.cam_from_floor))
+    if reference is not None and floor is not None and refusals.heel_hidden(_end_on(fit), floor[1], floor[0], config):
+        # the fit lifted the foot off the floor the reference shows (as when the leg hides the heel): before
+        # refusing, fit again held upright on it (the photo guide asks for the foot flat on the floor)
+        flat = fitted(reference, flat=True)
+        if refusals.fitted_foot(flat.quality, _end_on(flat), kind, config, floor, scaled=flat.scaled) is None:
+            fit = flat
+            messages.append(
+                f"the foot was fitted lying flat on the floor that {references.kind(reference.kind).described} shows "
+                "(a first fit lifted it off that floor: the heel may be hidden behind the leg); for the best figures "
+                "photograph the foot from the side and above, with the heel in view"
+            )
+    timings["fit_s"] = time.perf_counter() - t
     refusal = refusals.fitted_foot(fit.quality, _end_on(fit), kind, config, floor, scaled=fit.scaled)
     if refusal is not None:
         raise refusal
