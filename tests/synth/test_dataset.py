@@ -116,3 +116,21 @@ def test_a_dataset_made_before_a_config_field_existed_resumes(tmp_path):
     noisier = SynthConfig(size=48, rgb_noise_sd=0.02)
     with pytest.raises(ValueError, match="other settings"):
         ds.generate(tmp_path, 3, seed=1, config=noisier, progress=False, chunk=2)
+
+
+def test_other_formats_are_read_or_refused_clearly(tmp_path):
+    """A folder written by an older format is read (same keys, shapes, units) but not added to; an unknown one is
+    refused by the reader."""
+    import json
+
+    ds.generate(tmp_path, 3, seed=1, config=CONFIG, progress=False, chunk=2)
+    meta_path = tmp_path / "meta.json"
+    meta = json.loads(meta_path.read_text())
+    assert meta["format"] == ds.FORMAT
+    meta_path.write_text(json.dumps({**meta, "format": "footmesh-synth-1"}))
+    assert len(ds.SynthDataset(tmp_path)) == 3
+    with pytest.raises(ValueError, match="format 'footmesh-synth-1'"):
+        ds.generate(tmp_path, 3, seed=1, config=CONFIG, progress=False, chunk=2)
+    meta_path.write_text(json.dumps({**meta, "format": "footmesh-synth-99"}))
+    with pytest.raises(ValueError, match="not one this version reads"):
+        ds.SynthDataset(tmp_path)

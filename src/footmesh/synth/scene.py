@@ -427,10 +427,19 @@ def intrinsics(size: int, fov_deg: float) -> np.ndarray:
 
 
 def sample_angles(seed: int, index: int, method: str, rest_joints, stream: int = 1) -> np.ndarray:
-    """(22,) float64 joint angles of sample (seed, index), from the stream ``default_rng([seed, index, stream])``."""
+    """(22,) float64 joint angles of sample (seed, index), from the stream ``default_rng([seed, index, stream])``.
+
+    ``method="ik"`` is ``model.ik.sample_poses``' IK compiled for one foot (``synth.posing``, dataset format 2);
+    the others are ``sample_poses`` itself.
+    """
     from footmesh.model.ik import sample_poses
 
     rng = np.random.default_rng([seed, index, stream])
+    if method == "ik":
+        from footmesh.synth.posing import sample_ik_angles
+
+        rest = rest_joints.numpy() if hasattr(rest_joints, "numpy") else np.asarray(rest_joints)
+        return sample_ik_angles(rest, rng)
     return sample_poses(rest_joints, rng, 1, method=method)[0].numpy()
 
 
