@@ -438,3 +438,26 @@ def test_warm_up_loads_every_network_the_pipeline_uses_once():
         recon_weights.network_for(kind)
     assert cues_weights._cached_network.cache_info().misses == cues_before.misses
     assert recon_weights._cached_network.cache_info().misses == recon_before.misses
+
+
+@pytest.mark.slow
+def test_a_photo_through_a_tele_lens_without_intrinsics_takes_its_focal_length_from_the_sheet(tmp_path):
+    """Issue 19: a photo of a foot on an A4 sheet through a lens 2-3.5x the assumed one, given without K.json
+    (as a photo without EXIF): at the assumed focal length the oblique sheet is no rectangle and the photo was
+    unscaled; the sheet's perspective gives the focal length, and then millimetres."""
+    from footmesh.eval.measure import true_measurements
+    from footmesh.synth.render import Renderer
+    from footmesh.synth.scene import view_config
+
+    sample = Renderer(view_config("tele", size=640, reference="a4", elevation_deg=(35.0, 50.0))).render(7, 0)
+    paths = write_inputs(sample, tmp_path / "in", with_depth=False)
+    held = MeasureConfig(focal_prior_log_sd={"file": 0.0, "exif": 0.0, "default": 0.0})
+    before = measure_photo(paths["image"], tmp_path / "held", config=held)
+    assert before["scale_source"] == "none" and before["intrinsics"]["source"] == "default"
+    result = measure_photo(paths["image"], tmp_path / "out")
+    assert result["scale_source"] == "a4" and result["intrinsics"]["source"] == "reference"
+    true_f = float(sample["K"][0, 0])
+    assert result["intrinsics"]["fx"] == pytest.approx(true_f, rel=0.1)
+    assert any("perspective of an A4 sheet" in m for m in result["messages"])
+    truth = true_measurements(sample["shape"], "right" if int(sample["side"]) else "left")
+    assert result["measurements"]["stick_length"]["value_mm"] == pytest.approx(truth["stick_length"], abs=8.0)

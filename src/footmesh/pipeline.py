@@ -350,7 +350,7 @@ def run_pipeline(photo: Photo, side: str, config: MeasureConfig, input: str = "a
         reference = searched.found
         if reference is not None and abs(reference.K[0, 0] / K[0, 0] - 1.0) > 0.05:
             notes.append(
-                f"the focal length was taken from the {references.kind(reference.kind).described}'s perspective: "
+                f"the focal length was taken from the perspective of {references.kind(reference.kind).described}: "
                 f"{reference.K[0, 0] / K[0, 0]:.2f}x the {photo.intrinsics.source} one (known to "
                 f"{100 * reference.focal_log_sd:.0f} %); pass --intrinsics for exact figures"
             )
@@ -651,7 +651,7 @@ def _intrinsics_dict(photo: Photo, reference: ReferenceObject | None, photo_K: n
         "fy": own["fy"] * factor,
         "source": "reference",
         "note": (
-            f"focal length from the {references.kind(reference.kind).described}'s perspective: {factor:.2f}x the "
+            f"focal length from the perspective of {references.kind(reference.kind).described}: {factor:.2f}x the "
             f"{own['source']} one ({own['fx']:.0f} px), known to {100 * reference.focal_log_sd:.0f} %"
         ),
     }

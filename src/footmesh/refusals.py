@@ -118,8 +118,8 @@ def contradicted_reference(
 def heel_hidden(end_on: float, floor_end_on_bound: float, reference_kind: str, config: MeasureConfig) -> Refusal | None:
     """A plain photo whose fit points the foot more end-on (``end_on``: |cos| to the line of sight) than a foot
     lying on the floor a reference shows can be seen (``floor_end_on_bound``, ``pipeline.floor_end_on_bound``):
-    the fit lifted the foot off that floor, as when the heel is hidden behind the leg. (Refitting it flat on the
-    floor was tried: it then makes the foot up, 30+ mm short on real photos.)"""
+    the fit lifted the foot off that floor, as when the heel is hidden behind the leg. The pipeline refuses it only
+    when a second fit held upright on that floor fails too (``MeasureConfig.flat_refit_upright_robust``)."""
     if end_on <= config.max_rgb_end_on or floor_end_on_bound > config.max_rgb_end_on:
         return None
     named = references.kind(reference_kind).described
