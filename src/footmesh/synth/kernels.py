@@ -33,6 +33,16 @@ def _jit(func):
         return njit(nogil=True)(func)
 
 
+def _jit_inline(func):
+    """``_jit`` for the small per-point helpers of the kernels, inlined into their callers by numba: a call with
+    array arguments costs more than a texture lookup (references counted). The arithmetic is the same, in the same
+    order, so the bits are too."""
+    try:
+        return njit(cache=True, nogil=True, inline="always")(func)
+    except RuntimeError:
+        return njit(nogil=True, inline="always")(func)
+
+
 EDGE_TOLERANCE = 1e-9
 """Barycentric slack (dimensionless) that keeps samples on a shared edge from falling between two triangles."""
 
@@ -158,7 +168,7 @@ def compose(face, bary, faces, v_colour, floor_rgb):  # pragma: no cover
     return out
 
 
-@_jit
+@_jit_inline
 def bilinear_at(img, gx, gy):  # pragma: no cover
     """Bilinear lookup of a 2D map at (column, row) coordinates; 0 outside the map (one texel of zeros around it)."""
     h, w = img.shape
@@ -178,7 +188,7 @@ def bilinear_at(img, gx, gy):  # pragma: no cover
 # --- procedural textures ----------------------------------------------------------------------------------
 
 
-@_jit
+@_jit_inline
 def lattice(table, a, b, salt):  # pragma: no cover
     """``table`` value of the integer-valued cell (a, b) shifted by the salt (``textures._hash``, one point)."""
     n = table.shape[0] - 1
@@ -188,7 +198,7 @@ def lattice(table, a, b, salt):  # pragma: no cover
     return table[ia, ib]
 
 
-@_jit
+@_jit_inline
 def value_noise(table, x, y, cell, salt):  # pragma: no cover
     """Smooth value noise in [0, 1) at one point: hashed lattice values, smoothstep blend."""
     gx, gy = x / cell, y / cell
@@ -208,7 +218,7 @@ def value_noise_many(table, x, y, cell, salt):  # pragma: no cover
     return out
 
 
-@_jit
+@_jit_inline
 def floor_albedo(table, kind, base, size, angle, salt, contrast, x, y, out):  # pragma: no cover
     """Albedo (3,) into ``out`` of floor ``kind`` (0 wood, 1 tiles, 2 carpet, 3 plain) at the floor point x, y."""
     ca, sa = math.cos(angle), math.sin(angle)
@@ -262,7 +272,7 @@ def floor_texture(table, kind, base, size, angle, salt, contrast, x, y):  # prag
     return out
 
 
-@_jit
+@_jit_inline
 def reference_albedo(table, bits, kind, length, width, margin, card, tint, salt, u, v, out):  # pragma: no cover
     """Whether reference object ``kind`` (1 A4, 2 card, 3 marker) covers local point u, v (mm); its albedo into out.
 
@@ -374,39 +384,27 @@ def floor_shade(
             colour[k, 0] = colour[k, 1] = colour[k, 2] = 0.0
             if ref_kind > 0:
                 dx, dy = x - ref_origin[0], y - ref_origin[1]
-                ref_hit[k] = reference_albedo(
-                    table,
-                    bits,
-                    ref_kind,
-                    ref_length,
-                    ref_width,
-                    ref_margin,
-                    card,
-                    tint,
-                    ref_salt,
-                    rc * dx + rs * dy,
-                    -rs * dx + rc * dy,
-                    albedo,
-                )
+                u, v = rc * dx + rs * dy, -rs * dx + rc * dy
+                if (
+                    u >= -ref_margin
+                    and u <= ref_length + ref_margin
+                    and v >= -ref_margin
+                    and v <= ref_width + ref_margin
+                ):
+                    ref_hit[k] = reference_albedo(
+                        table, bits, ref_kind, ref_length, ref_width, ref_margin, card, tint, ref_salt, u, v, albedo
+                    )
             continue
         floor_albedo(table, kind, base, size, angle, salt, contrast, x, y, albedo)
         if ref_kind > 0:
             dx, dy = x - ref_origin[0], y - ref_origin[1]
-            if reference_albedo(
-                table,
-                bits,
-                ref_kind,
-                ref_length,
-                ref_width,
-                ref_margin,
-                card,
-                tint,
-                ref_salt,
-                rc * dx + rs * dy,
-                -rs * dx + rc * dy,
-                albedo,
-            ):
-                ref_hit[k] = True
+            u, v = rc * dx + rs * dy, -rs * dx + rc * dy
+            # the object's bounds (``reference_albedo``'s first test) checked here: most points are outside
+            if u >= -ref_margin and u <= ref_length + ref_margin and v >= -ref_margin and v <= ref_width + ref_margin:
+                if reference_albedo(
+                    table, bits, ref_kind, ref_length, ref_width, ref_margin, card, tint, ref_salt, u, v, albedo
+                ):
+                    ref_hit[k] = True
         shadow = bilinear_at(cast, (x - cast_lo[0]) / cast_texel, (y - cast_lo[1]) / cast_texel)
         occ = 0.6 * bilinear_at(contact, (x - contact_lo[0]) / contact_texel, (y - contact_lo[1]) / contact_texel)
         for c in range(3):
