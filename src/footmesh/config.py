@@ -321,6 +321,9 @@ class MeasureConfig:
     it. A guessed one (``default``: a phone's 26 mm-equivalent main camera) is often 2-3x short on real photos
     (the 2x / 3x lens, zoom, crops): the sheets of ``../shared/real/a4`` (no EXIF) give 1.3-3.1x on the three
     seen obliquely enough to tell. EXIF's 35 mm equivalent is right unless the photo was cropped."""
+    clear_paper: bool = True
+    """With a white sheet found, the pixels of the foot's silhouette on it that are of the paper's colour (its
+    shadow) are taken out before the fit (``cues.refine.clear_paper``)."""
     flat_refit_upright_robust: float = 1e3
     """A plain photo whose fit lifts the foot off the floor a reference shows (``refusals.heel_hidden``) is
     fitted again with the foot held upright on that floor: the fit's upright term (``FitConfig.upright_robust``)

@@ -25,7 +25,7 @@ from footmesh import __version__, references, refusals, report, viz
 from footmesh.config import MeasureConfig
 from footmesh.cues import Cues
 from footmesh.cues.predict import average_cues, predict_cues
-from footmesh.cues.refine import height_image, refine_silhouette
+from footmesh.cues.refine import clear_paper, height_image, refine_silhouette
 from footmesh.errors import InputError, Refusal
 from footmesh.geometry.camera import Camera, rescale_pixels
 from footmesh.load import Photo, load_photo
@@ -360,6 +360,8 @@ def run_pipeline(photo: Photo, side: str, config: MeasureConfig, input: str = "a
                 f"the reference: {searched.rejected}; lay the sheet flat, all of it in view, its sides clear of "
                 "clothing and shadows"
             )
+        if reference is not None and config.clear_paper and references.kind(reference.kind).detector == "sheet":
+            feet = [_off_the_paper(foot, rgb, reference.corners_px) for foot in feet]
     timings["reference_s"] = time.perf_counter() - t
 
     if len(feet) > 1 and side != "auto":
@@ -381,6 +383,13 @@ def run_pipeline(photo: Photo, side: str, config: MeasureConfig, input: str = "a
     if len(outcomes) == 1:
         return measured[0][0], measured[0][1]
     return _both_feet(outcomes, reference, side)
+
+
+def _off_the_paper(located: Located, rgb: np.ndarray, sheet_px: np.ndarray) -> Located:
+    """The foot with the pixels of its silhouette that are the white sheet's (its shadow on it) taken out
+    (``cues.refine.clear_paper``)."""
+    silhouette = clear_paper(rgb, located.cues.silhouette, sheet_px)
+    return replace(located, cues=replace(located.cues, silhouette=silhouette), mask=silhouette >= 0.5)
 
 
 def _end_on(fit) -> float:

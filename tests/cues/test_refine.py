@@ -6,7 +6,7 @@ import cv2
 import numpy as np
 import pytest
 
-from footmesh.cues.refine import RefineConfig, height_image, refine_silhouette
+from footmesh.cues.refine import RefineConfig, clear_paper, height_image, refine_silhouette
 from footmesh.synth.render import Renderer
 from footmesh.synth.scene import guided_view_config
 
@@ -93,3 +93,55 @@ def test_missing_depth_on_the_foots_outline_is_not_read_as_floor(photos):
         assert np.median(height[rim]) > 24  # > 4 mm above the floor, as the foot pixels beside them
         coarse = network_like(truth)
         assert iou(refine_silhouette(image, coarse) >= 0.5, truth) >= iou(coarse >= 0.5, truth)
+
+
+def _foot_on_paper(skin=(196, 140, 112), shadow_level=0.55, seed=0):
+    """A drawn photo: carpet, a white sheet, a skin-coloured foot on it and the foot's grey shadow on the paper
+    beside it (where a network's silhouette spills); (rgb, the sheet's corners, the foot's mask, the shadow's)."""
+    rng = np.random.default_rng(seed)
+    h, w = 400, 300
+    rgb = np.full((h, w, 3), (110, 104, 98), np.float64)  # carpet
+    sheet = np.array([[30, 20], [270, 20], [270, 380], [30, 380]], np.float64)
+    on_sheet = np.zeros((h, w), np.uint8)
+    cv2.fillConvexPoly(on_sheet, sheet.astype(np.int32), 1)
+    rgb[on_sheet > 0] = (236, 234, 226)
+    foot = np.zeros((h, w), np.uint8)
+    cv2.ellipse(foot, (150, 190), (50, 140), 0, 0, 360, 1, -1)
+    shadow = np.zeros((h, w), np.uint8)
+    cv2.ellipse(shadow, (95, 200), (35, 120), 0, 0, 360, 1, -1)
+    shadow = (shadow > 0) & (foot == 0) & (on_sheet > 0)
+    rgb[shadow] *= shadow_level
+    rgb[foot > 0] = skin
+    rgb += rng.normal(0, 3.0, rgb.shape)
+    return np.clip(rgb, 0, 255).astype(np.uint8), sheet, foot > 0, shadow
+
+
+def _iou(a, b):
+    return float((a & b).sum() / (a | b).sum())
+
+
+def test_the_shadow_on_the_sheet_is_taken_out_of_the_silhouette_and_the_foot_kept():
+    rgb, sheet, foot, shadow = _foot_on_paper()
+    spilled = (foot | shadow).astype(np.float32)
+    assert _iou(spilled >= 0.5, foot) < 0.8
+    cleared = clear_paper(rgb, spilled, sheet) >= 0.5
+    assert _iou(cleared, foot) > 0.97
+    assert not (cleared & shadow).any() or (cleared & shadow).sum() < 0.02 * shadow.sum()
+
+
+def test_dark_skin_and_deep_shadow_are_told_apart_too():
+    rgb, sheet, foot, shadow = _foot_on_paper(skin=(96, 62, 44), shadow_level=0.35, seed=1)
+    cleared = clear_paper(rgb, (foot | shadow).astype(np.float32), sheet) >= 0.5
+    assert _iou(cleared, foot) > 0.95
+
+
+def test_a_foot_the_colour_of_the_paper_or_off_the_sheet_is_left_alone():
+    rgb, sheet, foot, shadow = _foot_on_paper(skin=(180, 178, 172))  # grey: chromatically the paper's
+    spilled = (foot | shadow).astype(np.float32)
+    assert np.array_equal(clear_paper(rgb, spilled, sheet), spilled)
+    rgb, sheet, foot, shadow = _foot_on_paper()
+    elsewhere = sheet + [400.0, 0.0]  # a sheet found elsewhere: nothing of the silhouette lies on it
+    assert np.array_equal(
+        clear_paper(np.pad(rgb, ((0, 0), (0, 500), (0, 0))), np.pad(spilled, ((0, 0), (0, 500))), elsewhere),
+        np.pad(spilled, ((0, 0), (0, 500))),
+    )

@@ -225,3 +225,61 @@ def test_nearest_distance_and_bilinear():
     bottom = pad[y0 + 1, x0] * (1 - fx) + pad[y0 + 1, x0 + 1] * fx
     got = np.array([kernels.bilinear_at(img, a, b) for a, b in zip(gx, gy, strict=True)])
     np.testing.assert_allclose(got, top * (1 - fy) + bottom * fy, rtol=0, atol=1e-15)
+
+
+def _numpy_depth_noise(depth, rng):
+    """The former numpy ``render.depth_noise``."""
+    from footmesh.synth import render as r
+
+    z = depth.astype(np.float64)
+    sigma = r.DEPTH_NOISE_A_MM + r.DEPTH_NOISE_B_PER_MM * z * z
+    noisy = z + rng.standard_normal(z.shape) * sigma
+    jump = np.zeros(z.shape, dtype=bool)
+    limit = np.maximum(r.DEPTH_EDGE_JUMP[0], r.DEPTH_EDGE_JUMP[1] * z)
+    dy = np.abs(np.diff(z, axis=0)) > np.minimum(limit[1:], limit[:-1])
+    dx = np.abs(np.diff(z, axis=1)) > np.minimum(limit[:, 1:], limit[:, :-1])
+    jump[1:] |= dy
+    jump[:-1] |= dy
+    jump[:, 1:] |= dx
+    jump[:, :-1] |= dx
+    u = rng.random(z.shape)
+    drop = (jump & (u < r.DEPTH_EDGE_DROPOUT)) | (u > 1.0 - r.DEPTH_RANDOM_DROPOUT)
+    drop |= (z < r.DEPTH_RANGE_MM[0]) | (z > r.DEPTH_RANGE_MM[1])
+    return np.where(drop, 0, np.clip(np.round(noisy), 0, 65535)).astype(np.uint16)
+
+
+def test_depth_noise_and_rgb_quantisation_match_numpy():
+    from footmesh.synth.render import depth_noise
+
+    rng = np.random.default_rng(3)
+    depth = rng.uniform(50, 3200, (40, 50))
+    depth[5:20, 10:30] = 400.0 + rng.normal(0, 2, (15, 20))  # a surface with edges around it
+    depth[rng.random(depth.shape) < 0.1] = 0.0
+    got = depth_noise(depth, np.random.default_rng(8))
+    assert got.dtype == np.uint16 and got.tobytes() == _numpy_depth_noise(depth, np.random.default_rng(8)).tobytes()
+    rgb = rng.uniform(-0.05, 1.05, (30, 20, 3))
+    noise = rng.normal(0, 0.01, rgb.shape)
+    rgb[0, 0, 0], noise[0, 0, 0] = 0.5 / 255.0, 0.0  # a tie: rounds half to even
+    want = np.clip(np.round((rgb + noise) * 255.0), 0, 255).astype(np.uint8)
+    assert kernels.rgb_to_uint8(rgb, noise).tobytes() == want.tobytes()
+
+
+def test_normals_match_geometry_mesh():
+    import trimesh
+
+    from footmesh.geometry.mesh import vertex_normals
+    from footmesh.synth.render import _mesh_normals
+
+    mesh = trimesh.creation.icosphere(subdivisions=2)
+    v = mesh.vertices * np.random.default_rng(0).uniform(0.5, 2.0, (len(mesh.vertices), 1))
+    assert _mesh_normals(v, mesh.faces).tobytes() == vertex_normals(v, mesh.faces).tobytes()
+
+
+def test_foot_normals_match_the_sparse_incidence_product(renderer):
+    from footmesh.geometry.mesh import face_normals
+
+    verts = renderer.model.mean_vertices.numpy().astype(np.float64) * 1.01
+    faces = renderer._faces["right"]
+    n = renderer._incidence @ face_normals(verts, faces, unit=False)
+    want = n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
+    assert renderer._vertex_normals(verts, faces).tobytes() == want.tobytes()

@@ -118,50 +118,61 @@ def floor_needed(face):  # pragma: no cover
     return out
 
 
+@_jit_inline
+def _sample_row(face, bary, faces, v_colour, floor_rgb, r, out):  # pragma: no cover
+    """Colour of the supersampled row ``r`` into ``out`` (n, 3): ``compose``'s samples, one row at a time."""
+    n = face.shape[1]
+    size = floor_rgb.shape[0]
+    # the floor's pixel rows around sample row r (the same one twice at a pixel centre)
+    if r % 2 == 1:
+        ra = rb = (r - 1) // 2
+    else:
+        ra, rb = max(r // 2 - 1, 0), min(r // 2, size - 1)
+    for s in range(n):
+        f = face[r, s]
+        if f >= 0:
+            t0, t1, t2 = faces[f, 0], faces[f, 1], faces[f, 2]
+            w0, w1, w2 = bary[r, s, 0], bary[r, s, 1], bary[r, s, 2]
+            for c in range(3):
+                out[s, c] = w0 * v_colour[t0, c] + w1 * v_colour[t1, c] + w2 * v_colour[t2, c]
+            continue
+        if s % 2 == 1:
+            ca = cb = (s - 1) // 2
+        else:
+            ca, cb = max(s // 2 - 1, 0), min(s // 2, size - 1)
+        for c in range(3):
+            if ra == rb:
+                left, right = floor_rgb[ra, ca, c], floor_rgb[ra, cb, c]
+            else:
+                left = 0.5 * (floor_rgb[ra, ca, c] + floor_rgb[rb, ca, c])
+                right = 0.5 * (floor_rgb[ra, cb, c] + floor_rgb[rb, cb, c])
+            out[s, c] = left if ca == cb else 0.5 * (left + right)
+
+
 @_jit
 def compose(face, bary, faces, v_colour, floor_rgb):  # pragma: no cover
     """Anti-aliased (S, S, 3) colour from the (2S+1)^2 supersampled mesh fragments and the floor at pixel centres.
 
     A sample covered by the mesh takes its barycentric blend of ``v_colour``; any other sample the floor's
     colour, bilinear between the pixel centres (edges replicated); then the tent ``[1, 2, 1] / 4`` along rows
-    and columns.
+    and columns. Sample rows are made as the filter reaches them (three at a time; the last is the next pixel
+    row's first).
     """
     n = face.shape[0]
     size = floor_rgb.shape[0]
-    samples = np.empty((n, n, 3))
-    for r in range(n):
-        # the floor's pixel rows around sample row r (the same one twice at a pixel centre)
-        if r % 2 == 1:
-            ra = rb = (r - 1) // 2
-        else:
-            ra, rb = max(r // 2 - 1, 0), min(r // 2, size - 1)
-        for s in range(n):
-            f = face[r, s]
-            if f >= 0:
-                t0, t1, t2 = faces[f, 0], faces[f, 1], faces[f, 2]
-                w0, w1, w2 = bary[r, s, 0], bary[r, s, 1], bary[r, s, 2]
-                for c in range(3):
-                    samples[r, s, c] = w0 * v_colour[t0, c] + w1 * v_colour[t1, c] + w2 * v_colour[t2, c]
-                continue
-            if s % 2 == 1:
-                ca = cb = (s - 1) // 2
-            else:
-                ca, cb = max(s // 2 - 1, 0), min(s // 2, size - 1)
-            for c in range(3):
-                if ra == rb:
-                    left, right = floor_rgb[ra, ca, c], floor_rgb[ra, cb, c]
-                else:
-                    left = 0.5 * (floor_rgb[ra, ca, c] + floor_rgb[rb, ca, c])
-                    right = 0.5 * (floor_rgb[ra, cb, c] + floor_rgb[rb, cb, c])
-                samples[r, s, c] = left if ca == cb else 0.5 * (left + right)
+    top = np.empty((n, 3))
+    middle = np.empty((n, 3))
+    bottom = np.empty((n, 3))
+    _sample_row(face, bary, faces, v_colour, floor_rgb, 0, bottom)
     out = np.empty((size, size, 3))
     rows = np.empty((n, 3))
     for i in range(size):
+        top, bottom = bottom, top  # sample row 2i: the previous pixel row's last
+        _sample_row(face, bary, faces, v_colour, floor_rgb, 2 * i + 1, middle)
+        _sample_row(face, bary, faces, v_colour, floor_rgb, 2 * i + 2, bottom)
         for s in range(n):
             for c in range(3):
-                rows[s, c] = (
-                    0.25 * samples[2 * i, s, c] + 0.5 * samples[2 * i + 1, s, c] + 0.25 * samples[2 * i + 2, s, c]
-                )
+                rows[s, c] = 0.25 * top[s, c] + 0.5 * middle[s, c] + 0.25 * bottom[s, c]
         for j in range(size):
             for c in range(3):
                 out[i, j, c] = 0.25 * rows[2 * j, c] + 0.5 * rows[2 * j + 1, c] + 0.25 * rows[2 * j + 2, c]
@@ -424,4 +435,105 @@ def nearest_distance(points, vertices):  # pragma: no cover
             dz = points[p, 2] - vertices[v, 2]
             best = min(best, dx * dx + dy * dy + dz * dz)
         out[p] = math.sqrt(best)
+    return out
+
+
+# --- normals and sensor noise (numpy's expressions, in numpy's order) -----------------------------------------
+
+
+@_jit
+def area_normals(vertices, faces):  # pragma: no cover
+    """(F, 3) ``cross(v1 - v0, v2 - v0)`` of each face (``geometry.mesh.face_normals(unit=False)``)."""
+    out = np.empty((faces.shape[0], 3))
+    for f in range(faces.shape[0]):
+        i0, i1, i2 = faces[f, 0], faces[f, 1], faces[f, 2]
+        a0, a1, a2 = (
+            vertices[i1, 0] - vertices[i0, 0],
+            vertices[i1, 1] - vertices[i0, 1],
+            vertices[i1, 2] - vertices[i0, 2],
+        )
+        b0, b1, b2 = (
+            vertices[i2, 0] - vertices[i0, 0],
+            vertices[i2, 1] - vertices[i0, 1],
+            vertices[i2, 2] - vertices[i0, 2],
+        )
+        out[f, 0] = a1 * b2 - a2 * b1
+        out[f, 1] = a2 * b0 - a0 * b2
+        out[f, 2] = a0 * b1 - a1 * b0
+    return out
+
+
+@_jit
+def csr_rows(indptr, indices, data, x):  # pragma: no cover
+    """(R, 3) ``A @ x`` of a CSR matrix A (R, F) and (F, 3) ``x``, summed in scipy's order (``csr_matvecs``)."""
+    out = np.zeros((indptr.shape[0] - 1, 3))
+    for r in range(indptr.shape[0] - 1):
+        for jj in range(indptr[r], indptr[r + 1]):
+            j, a = indices[jj], data[jj]
+            for c in range(3):
+                out[r, c] += a * x[j, c]
+    return out
+
+
+@_jit
+def scatter_faces(faces, values, n):  # pragma: no cover
+    """(n, 3) sums of each face's ``values`` (F, 3) at its three vertices (``np.add.at`` per corner, in order)."""
+    out = np.zeros((n, 3))
+    for k in range(3):
+        for f in range(faces.shape[0]):
+            v = faces[f, k]
+            for c in range(3):
+                out[v, c] += values[f, c]
+    return out
+
+
+@_jit
+def unit_rows(x, eps):  # pragma: no cover
+    """(N, 3) rows divided by ``max(|row|, eps)``: ``x / np.maximum(np.linalg.norm(x, axis=1, keepdims=True), eps)``
+    (numpy sums the three squares in order)."""
+    out = np.empty_like(x)
+    for r in range(x.shape[0]):
+        norm = max(math.sqrt(x[r, 0] * x[r, 0] + x[r, 1] * x[r, 1] + x[r, 2] * x[r, 2]), eps)
+        for c in range(3):
+            out[r, c] = x[r, c] / norm
+    return out
+
+
+@_jit
+def rgb_to_uint8(rgb, noise):  # pragma: no cover
+    """``clip(round((rgb + noise) * 255), 0, 255)`` as uint8 (rounding half to even, as ``np.round``)."""
+    out = np.empty(rgb.shape, dtype=np.uint8)
+    flat_in, flat_noise, flat_out = rgb.reshape(-1), noise.reshape(-1), out.reshape(-1)
+    for k in range(flat_in.shape[0]):
+        flat_out[k] = np.uint8(min(max(np.rint((flat_in[k] + flat_noise[k]) * 255.0), 0.0), 255.0))
+    return out
+
+
+@_jit
+def depth_sensor(z, normal, u, a, b, jump_min, jump_frac, edge_dropout, keep_below, near, far):  # pragma: no cover
+    """``render.depth_noise`` after its draws: (S, S) uint16 mm from exact depth ``z``, the standard normals and
+    the uniforms (S, S each); the same expressions in the same order, so the same bits."""
+    h, w = z.shape
+    out = np.empty((h, w), dtype=np.uint16)
+    for i in range(h):
+        for j in range(w):
+            zij = z[i, j]
+            limit = max(jump_min, jump_frac * zij)
+            jump = False
+            for di, dj in ((-1, 0), (1, 0), (0, -1), (0, 1)):
+                ni, nj = i + di, j + dj
+                if 0 <= ni < h and 0 <= nj < w:
+                    zn = z[ni, nj]
+                    # |z_lo - z_hi| of the pair in ``np.diff`` order against the smaller limit of the two
+                    d = abs(zn - zij) if (di > 0 or dj > 0) else abs(zij - zn)
+                    if d > min(limit, max(jump_min, jump_frac * zn)):
+                        jump = True
+            uij = u[i, j]
+            drop = (jump and uij < edge_dropout) or uij > keep_below or zij < near or zij > far
+            if drop:
+                out[i, j] = 0
+            else:
+                sigma = a + b * zij * zij
+                noisy = zij + normal[i, j] * sigma
+                out[i, j] = np.uint16(min(max(np.rint(noisy), 0.0), 65535.0))
     return out

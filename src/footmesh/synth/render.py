@@ -29,7 +29,7 @@ from scipy import ndimage, sparse
 
 from footmesh import references
 from footmesh.geometry.camera import project
-from footmesh.geometry.mesh import face_normals, vertex_normals
+from footmesh.geometry.mesh import vertex_normals
 from footmesh.model.layer import FootModel
 from footmesh.model.skin import SkinColours, load_skin_colours
 from footmesh.synth import kernels, raster, textures
@@ -121,6 +121,9 @@ class Renderer:
         # (V, F) vertex-face incidence: vertex normals = incidence @ face normals (area weighted)
         self._incidence = sparse.csr_matrix((np.ones(rows.size), (faces.reshape(-1), rows)), shape=(nv, len(faces)))
         normals = vertex_normals(mean, faces)
+        size = config.size
+        jj, ii = np.meshgrid(np.arange(size, dtype=np.float64), np.arange(size, dtype=np.float64))
+        self._pix = np.stack([jj.ravel(), ii.ravel(), np.ones(size * size)], axis=1)  # (S^2, 3) pixel centres
         self.cap = np.flatnonzero((mean[:, 2] > CAP_MIN_HEIGHT_MM) & (normals[:, 2] > CAP_NORMAL_Z))
         if len(self.cap) < 8:
             raise ValueError(f"foot model: found only {len(self.cap)} ankle-cap vertices to grow the leg from")
@@ -253,7 +256,7 @@ class Renderer:
         light = scene.light_dir
         normals = np.concatenate(
             [self._vertex_normals(m.vertices, m.faces) for m in feet]
-            + [vertex_normals(m.vertices, m.faces) for m in legs]
+            + [_mesh_normals(m.vertices, m.faces) for m in legs]
         )
         lambert = np.clip(normals @ light, 0.0, None)
         sky = 0.8 + 0.2 * normals[:, 2]  # hemispheric ambient: surfaces facing down get a little less light
@@ -263,13 +266,10 @@ class Renderer:
         # floor, reference object and background: evaluated at the pixel centres (exact depth and labels), and
         # upsampled bilinearly to the samples between them, where the mesh does not cover them
         eye = -rot.T @ trans
-        jj, ii = np.meshgrid(np.arange(size, dtype=np.float64), np.arange(size, dtype=np.float64))
-        pix = np.stack([jj.ravel(), ii.ravel(), np.ones(size * size)], axis=1)
-        rays = pix @ np.linalg.inv(k).T @ rot  # scene-frame directions with camera z = 1
+        rays = self._pix @ np.linalg.inv(k).T @ rot  # scene-frame directions with camera z = 1
         floor_rgb, floor_depth, ref_hit = self._floor(scene, geo, eye, rays, kernels.floor_needed(frag.face))
         rgb = kernels.compose(frag.face, frag.bary, faces, v_colour, floor_rgb.reshape(size, size, 3))
-        rgb = rgb + rng.normal(0.0, self.config.rgb_noise_sd, rgb.shape)
-        rgb = np.clip(np.round(rgb * 255.0), 0, 255).astype(np.uint8)
+        rgb = kernels.rgb_to_uint8(rgb, rng.normal(0.0, self.config.rgb_noise_sd, rgb.shape))
 
         # labels at pixel centres (odd samples)
         centre_face = frag.face[1::2, 1::2]
@@ -323,8 +323,10 @@ class Renderer:
         }
 
     def _vertex_normals(self, verts: np.ndarray, faces: np.ndarray) -> np.ndarray:
-        n = self._incidence @ face_normals(verts, faces, unit=False)
-        return n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
+        """(V, 3) unit area-weighted vertex normals of the foot model's mesh (its vertex-face incidence)."""
+        inc = self._incidence
+        n = kernels.csr_rows(inc.indptr, inc.indices, inc.data, kernels.area_normals(verts, faces))
+        return kernels.unit_rows(n, 1e-12)
 
     def _floor(
         self, scene: Scene, geo: Geometry, eye: np.ndarray, rays: np.ndarray, needed: np.ndarray
@@ -387,6 +389,12 @@ class Renderer:
         return _coverage_map(v[:, :2], v[:, 2], faces, texel=3.0, blur_mm=10.0, mode="height")
 
 
+def _mesh_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """(V, 3) ``geometry.mesh.vertex_normals``, compiled (the same bits)."""
+    area = kernels.area_normals(np.ascontiguousarray(vertices, dtype=np.float64), np.ascontiguousarray(faces))
+    return kernels.unit_rows(kernels.scatter_faces(faces, area, len(vertices)), 1e-12)
+
+
 def _merge(meshes: list[Mesh]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """One vertex, face and albedo array of several meshes, in their order (face ids follow that order)."""
     offsets = np.cumsum([0] + [len(m.vertices) for m in meshes[:-1]])
@@ -441,21 +449,20 @@ def depth_noise(depth: np.ndarray, rng: np.random.Generator) -> np.ndarray:
     depth edge (``DEPTH_EDGE_JUMP``) vanish with probability ``DEPTH_EDGE_DROPOUT``, any pixel with
     ``DEPTH_RANDOM_DROPOUT``; outside ``DEPTH_RANGE_MM`` the depth is missing; rounded to whole millimetres.
     """
-    z = depth.astype(np.float64)
-    sigma = DEPTH_NOISE_A_MM + DEPTH_NOISE_B_PER_MM * z * z
-    noisy = z + rng.standard_normal(z.shape) * sigma
-    jump = np.zeros(z.shape, dtype=bool)
-    limit = np.maximum(DEPTH_EDGE_JUMP[0], DEPTH_EDGE_JUMP[1] * z)
-    dy = np.abs(np.diff(z, axis=0)) > np.minimum(limit[1:], limit[:-1])
-    dx = np.abs(np.diff(z, axis=1)) > np.minimum(limit[:, 1:], limit[:, :-1])
-    jump[1:] |= dy
-    jump[:-1] |= dy
-    jump[:, 1:] |= dx
-    jump[:, :-1] |= dx
+    z = np.ascontiguousarray(depth, dtype=np.float64)
+    normal = rng.standard_normal(z.shape)
     u = rng.random(z.shape)
-    drop = (jump & (u < DEPTH_EDGE_DROPOUT)) | (u > 1.0 - DEPTH_RANDOM_DROPOUT)
-    drop |= (z < DEPTH_RANGE_MM[0]) | (z > DEPTH_RANGE_MM[1])
-    return np.where(drop, 0, np.clip(np.round(noisy), 0, 65535)).astype(np.uint16)
+    return kernels.depth_sensor(
+        z,
+        normal,
+        u,
+        DEPTH_NOISE_A_MM,
+        DEPTH_NOISE_B_PER_MM,
+        *DEPTH_EDGE_JUMP,
+        DEPTH_EDGE_DROPOUT,
+        1.0 - DEPTH_RANDOM_DROPOUT,
+        *DEPTH_RANGE_MM,
+    )
 
 
 def _tube(
