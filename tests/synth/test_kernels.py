@@ -283,3 +283,31 @@ def test_foot_normals_match_the_sparse_incidence_product(renderer):
     n = renderer._incidence @ face_normals(verts, faces, unit=False)
     want = n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
     assert renderer._vertex_normals(verts, faces).tobytes() == want.tobytes()
+
+
+def _python_visible(uv, z, mask, depth, tolerance):
+    """The former Python ``render._visible``."""
+    size_h, size_w = mask.shape
+    out = np.zeros(len(uv), dtype=bool)
+    for i, ((u, v), zi, tol) in enumerate(zip(uv, z, tolerance, strict=True)):
+        if not (zi > 0 and -0.5 <= u < size_w - 0.5 and -0.5 <= v < size_h - 0.5):
+            continue
+        c, r = int(round(u)), int(round(v))
+        rs, cs = slice(max(r - 1, 0), r + 2), slice(max(c - 1, 0), c + 2)
+        out[i] = bool(np.any(mask[rs, cs] & (depth[rs, cs] >= zi - tol)))
+    return out
+
+
+def test_visibility_matches_the_python_loop():
+    from footmesh.synth.render import _visible
+
+    rng = np.random.default_rng(2)
+    mask = rng.random((30, 40)) < 0.5
+    depth = rng.uniform(100, 200, mask.shape)
+    uv = rng.uniform(-2, 42, (500, 2))
+    uv[:20] = np.round(uv[:20]) + 0.5  # ties: half to even
+    z = rng.uniform(-10, 220, 500)
+    tol = rng.uniform(0, 20, 500)
+    want = _python_visible(uv, z, mask, depth, tol)
+    assert want.any() and not want.all()
+    assert np.array_equal(_visible(uv, z, mask, depth, tol), want)

@@ -537,3 +537,22 @@ def depth_sensor(z, normal, u, a, b, jump_min, jump_frac, edge_dropout, keep_bel
                 noisy = zij + normal[i, j] * sigma
                 out[i, j] = np.uint16(min(max(np.rint(noisy), 0.0), 65535.0))
     return out
+
+
+@_jit
+def visible(uv, z, mask, depth, tolerance):  # pragma: no cover
+    """(P,) points whose projection lies in the image and, within one pixel, on ``mask`` (H, W) with
+    ``depth >= z - tolerance`` (``render._visible``; the pixel is the rounded projection, half to even)."""
+    h, w = mask.shape
+    out = np.zeros(uv.shape[0], dtype=np.bool_)
+    for i in range(uv.shape[0]):
+        u, v, zi = uv[i, 0], uv[i, 1], z[i]
+        if not (zi > 0 and -0.5 <= u < w - 0.5 and -0.5 <= v < h - 0.5):
+            continue
+        c, r = int(np.rint(u)), int(np.rint(v))
+        limit = zi - tolerance[i]
+        for rr in range(max(r - 1, 0), min(r + 2, h)):
+            for cc in range(max(c - 1, 0), min(c + 2, w)):
+                if mask[rr, cc] and depth[rr, cc] >= limit:
+                    out[i] = True
+    return out

@@ -431,15 +431,13 @@ def _coverage_map(
 
 def _visible(uv: np.ndarray, z: np.ndarray, mask: np.ndarray, depth: np.ndarray, tolerance: np.ndarray) -> np.ndarray:
     """Points whose projection lies in the image and, within one pixel, on ``mask`` with depth >= z - tolerance."""
-    size_h, size_w = mask.shape
-    out = np.zeros(len(uv), dtype=bool)
-    for i, ((u, v), zi, tol) in enumerate(zip(uv, z, tolerance, strict=True)):
-        if not (zi > 0 and -0.5 <= u < size_w - 0.5 and -0.5 <= v < size_h - 0.5):
-            continue
-        c, r = int(round(u)), int(round(v))
-        rs, cs = slice(max(r - 1, 0), r + 2), slice(max(c - 1, 0), c + 2)
-        out[i] = bool(np.any(mask[rs, cs] & (depth[rs, cs] >= zi - tol)))
-    return out
+    return kernels.visible(
+        np.ascontiguousarray(uv, dtype=np.float64),
+        np.ascontiguousarray(z, dtype=np.float64),
+        np.ascontiguousarray(mask, dtype=bool),
+        np.ascontiguousarray(depth, dtype=np.float64),
+        np.ascontiguousarray(tolerance, dtype=np.float64),
+    )
 
 
 def depth_noise(depth: np.ndarray, rng: np.random.Generator) -> np.ndarray:
