@@ -131,11 +131,10 @@ class _ZipWriter:
         self.f = f
         self.central: list[bytes] = []
         self.offset = 0
+        self._headers: dict[tuple, bytes] = {}
 
     def add_npy(self, name: str, value: np.ndarray) -> None:
-        buffer = io.BytesIO()
-        np.lib.format.write_array(buffer, np.asanyarray(value), allow_pickle=False)
-        raw = buffer.getbuffer()
+        raw = self._npy(np.asanyarray(value))
         compressor = self.isal_zlib.compressobj(COMPRESS_LEVEL, self.isal_zlib.DEFLATED, -15)
         data = compressor.compress(raw) + compressor.flush()  # raw deflate (wbits -15), as zip members hold
         crc = zlib.crc32(raw)
@@ -153,6 +152,19 @@ class _ZipWriter:
         self.f.write(data)
         self.central.append(central + filename)
         self.offset += len(local) + len(filename) + len(data)
+
+    def _npy(self, value: np.ndarray) -> bytes:
+        """The ``.npy`` file of ``value`` (``np.lib.format.write_array``'s bytes; its header made once per dtype and
+        shape)."""
+        if value.dtype.hasobject:
+            raise ValueError("object arrays are not written into chunk files")
+        key = (value.dtype.str, value.shape, value.flags.f_contiguous and not value.flags.c_contiguous)
+        header = self._headers.get(key)
+        if header is None:
+            buffer = io.BytesIO()
+            np.lib.format.write_array(buffer, value, allow_pickle=False)
+            header = self._headers[key] = buffer.getvalue()[: buffer.tell() - value.nbytes]
+        return header + value.tobytes(order="F" if key[2] else "C")
 
     def close(self) -> None:
         directory = b"".join(self.central)

@@ -105,6 +105,18 @@ def rasterize_into(xy, z, faces, perspective, cull_back, face_out, depth_out, ba
 
 
 @_jit
+def rasterize(xy, z, faces, height, width, perspective, cull_back):  # pragma: no cover
+    """``rasterize_into`` fresh buffers: face (H, W) int64 = -1, depth (H, W) = inf, bary (H, W, 3) = 0 (made here,
+    without the GIL, so that other threads run while they are filled)."""
+    face = np.full((height, width), -1, dtype=np.int64)
+    depth = np.full((height, width), np.inf)
+    bary = np.zeros((height, width, 3))
+    if faces.shape[0]:
+        rasterize_into(xy, z, faces, perspective, cull_back, face, depth, bary)
+    return face, depth, bary
+
+
+@_jit
 def floor_needed(face):  # pragma: no cover
     """(S, S) bool: the pixel centres whose floor colour ``compose`` reads (a sample near them misses the mesh)."""
     size = (face.shape[0] - 1) // 2

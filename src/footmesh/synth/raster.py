@@ -60,9 +60,4 @@ def rasterize(
     xy = np.ascontiguousarray(xy, dtype=np.float64)
     z = np.ascontiguousarray(z, dtype=np.float64)
     faces = np.ascontiguousarray(faces, dtype=np.int64)
-    face = np.full((height, width), -1, dtype=np.int64)
-    depth = np.full((height, width), np.inf)
-    bary = np.zeros((height, width, 3))
-    if len(faces):
-        kernels.rasterize_into(xy, z, faces, bool(perspective), bool(cull_back), face, depth, bary)
-    return Fragments(face, depth, bary)
+    return Fragments(*kernels.rasterize(xy, z, faces, int(height), int(width), bool(perspective), bool(cull_back)))
