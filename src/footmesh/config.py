@@ -317,8 +317,8 @@ class MeasureConfig:
     2.92 / 2.06 mm (measured with ``footmesh eval measure --views guided``; the average: README)."""
     focal_prior_log_sd: dict[str, float] = field(default_factory=lambda: {"file": 0.0, "exif": 0.1, "default": 0.7})
     """How well the photo's focal length is known, by ``Intrinsics.source`` (SD of its log; 0 = held): with a
-    sheet or card in view, the focal length its perspective gives (``cues.reference.focal``) is weighed against
-    it. A guessed one (``default``: a phone's 26 mm-equivalent main camera) is often 2-3x short on real photos
+    sheet or marker in view, the focal length its perspective gives (``cues.reference.focal``) is weighed
+    against it. A guessed one (``default``: a phone's 26 mm-equivalent main camera) is often 2-3x short on real photos
     (the 2x / 3x lens, zoom, crops): the sheets of ``../shared/real/a4`` (no EXIF) give 1.3-3.1x on the three
     seen obliquely enough to tell. EXIF's 35 mm equivalent is right unless the photo was cropped."""
     clear_paper: bool = True

@@ -348,12 +348,6 @@ def run_pipeline(photo: Photo, side: str, config: MeasureConfig, input: str = "a
         focal_prior = config.focal_prior_log_sd[photo.intrinsics.source]
         searched = search_reference(rgb, K, exclude_mask=exclude, focal_prior_log_sd=focal_prior)
         reference = searched.found
-        if reference is not None and abs(reference.K[0, 0] / K[0, 0] - 1.0) > 0.05:
-            notes.append(
-                f"the focal length was taken from the perspective of {references.kind(reference.kind).described}: "
-                f"{reference.K[0, 0] / K[0, 0]:.2f}x the {photo.intrinsics.source} one (known to "
-                f"{100 * reference.focal_log_sd:.0f} %); pass --intrinsics for exact figures"
-            )
         if reference is None and searched.rejected is not None:
             notes.append(
                 f"a sheet-like object ({100 * searched.rejected_area:.0f} % of the photo) was seen but not taken as "
@@ -547,6 +541,12 @@ def _measure_located(
             fit = fitted(None)
     # the reference's perspective may have corrected a guessed focal length: the camera the fit used
     photo_K, K = K, (K if reference is None else reference.K)
+    if abs(K[0, 0] / photo_K[0, 0] - 1.0) > 0.05:
+        messages.append(
+            f"the focal length was taken from the perspective of {references.kind(reference.kind).described}: "
+            f"{K[0, 0] / photo_K[0, 0]:.2f}x the {photo.intrinsics.source} one (known to "
+            f"{100 * reference.focal_log_sd:.0f} %); pass --intrinsics for exact figures"
+        )
     floor = None
     if seen_reference is not None:
         # the floor the reference shows, not the fit, says how end-on a foot lying on it can be seen

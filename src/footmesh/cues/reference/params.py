@@ -20,9 +20,9 @@ SHEETS = references.with_detector("sheet")
 """The kinds found as sheets of paper (bright, may bow, may lie under the foot and be completed)."""
 RECTANGLES = references.with_detector("sheet") + references.with_detector("card")
 MARKERS = references.with_detector("marker")
+"""The kinds named by their side ratio (markers are named by their pattern)."""
 FOCAL_KINDS = [k.name for k in references.KINDS if k.calibrates_focal]
 """The kinds whose perspective may correct a guessed focal length (``ReferenceKind.calibrates_focal``)."""
-"""The kinds named by their side ratio (markers are named by their pattern)."""
 ARUCO_DICTIONARY = cv2.aruco.DICT_4X4_50
 ARUCO_ID = 0
 MARKER_SHEET_SCALE = 1.5
