@@ -311,3 +311,15 @@ def test_visibility_matches_the_python_loop():
     want = _python_visible(uv, z, mask, depth, tol)
     assert want.any() and not want.all()
     assert np.array_equal(_visible(uv, z, mask, depth, tol), want)
+
+
+@pytest.mark.parametrize("sigma", [4.0 / 3.0, 10.0 / 3.0, 2.7, 0.6])
+def test_gaussian_blur_matches_scipy(sigma):
+    from scipy import ndimage
+
+    from footmesh.synth.render import gaussian_weights
+
+    rng = np.random.default_rng(1)
+    x = (rng.random((70, 90)) < 0.3) * rng.random((70, 90))
+    want = ndimage.gaussian_filter(x, sigma, mode="constant")
+    assert kernels.gaussian_blur(x, gaussian_weights(sigma)).tobytes() == want.tobytes()

@@ -568,3 +568,31 @@ def visible(uv, z, mask, depth, tolerance):  # pragma: no cover
                 if mask[rr, cc] and depth[rr, cc] >= limit:
                     out[i] = True
     return out
+
+
+@_jit
+def gaussian_blur(x, weights):  # pragma: no cover
+    """``scipy.ndimage.gaussian_filter(x, sigma, mode="constant")`` of a 2D map with the symmetric 1D ``weights``
+    (2r + 1,) of that sigma: along axis 0, then axis 1, each output the centre times its weight plus the pairs
+    around it from the farthest in (scipy's ``correlate1d`` for symmetric weights; zeros outside)."""
+    return _blur_axis(_blur_axis(x, weights, True), weights, False)
+
+
+@_jit_inline
+def _blur_axis(x, w, along_rows):  # pragma: no cover
+    h, wd = x.shape
+    r = w.shape[0] // 2
+    out = np.empty_like(x)
+    for i in range(h):
+        for j in range(wd):
+            acc = x[i, j] * w[r]
+            for k in range(r, 0, -1):
+                if along_rows:
+                    a = x[i - k, j] if i - k >= 0 else 0.0
+                    b = x[i + k, j] if i + k < h else 0.0
+                else:
+                    a = x[i, j - k] if j - k >= 0 else 0.0
+                    b = x[i, j + k] if j + k < wd else 0.0
+                acc += (a + b) * w[r - k]
+            out[i, j] = acc
+    return out

@@ -25,7 +25,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import torch
-from scipy import ndimage, sparse
+from scipy import sparse
 
 from footmesh import references
 from footmesh.geometry.camera import project
@@ -425,8 +425,17 @@ def _coverage_map(
         value = (frag.face >= 0).astype(np.float64)
     else:
         value = np.where(frag.face >= 0, np.exp(-(frag.depth - 1.0) / 25.0), 0.0)
-    value = ndimage.gaussian_filter(value, blur_mm / texel, mode="constant")
+    value = kernels.gaussian_blur(np.ascontiguousarray(value), gaussian_weights(blur_mm / texel))
     return value, lo, float(texel)
+
+
+def gaussian_weights(sigma: float, truncate: float = 4.0) -> np.ndarray:
+    """(2r + 1,) normalised Gaussian weights of SD ``sigma`` (texels), ``r = int(truncate sigma + 0.5)``: scipy's
+    ``gaussian_filter`` kernel, value for value (``kernels.gaussian_blur`` applies it)."""
+    radius = int(truncate * float(sigma) + 0.5)
+    x = np.arange(-radius, radius + 1)
+    phi = np.exp(-0.5 / (sigma * sigma) * x**2)
+    return phi / phi.sum()
 
 
 def _visible(uv: np.ndarray, z: np.ndarray, mask: np.ndarray, depth: np.ndarray, tolerance: np.ndarray) -> np.ndarray:
