@@ -20,6 +20,7 @@ Image formation (per sample; the per-sample and per-pixel loops are compiled wit
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
@@ -267,7 +268,10 @@ class Renderer:
         # upsampled bilinearly to the samples between them, where the mesh does not cover them
         eye = -rot.T @ trans
         rays = self._pix @ np.linalg.inv(k).T @ rot  # scene-frame directions with camera z = 1
-        floor_rgb, floor_depth, ref_hit = self._floor(scene, geo, eye, rays, kernels.floor_needed(frag.face))
+        n_foot_verts = sum(len(m.vertices) for m in feet)
+        floor_rgb, floor_depth, ref_hit = self._floor(
+            scene, geo, eye, rays, kernels.floor_needed(frag.face), (verts, faces, n_foot_verts, n_foot_faces)
+        )
         rgb = kernels.compose(frag.face, frag.bary, faces, v_colour, floor_rgb.reshape(size, size, 3))
         rgb = kernels.rgb_to_uint8(rgb, rng.normal(0.0, self.config.rgb_noise_sd, rgb.shape))
 
@@ -329,14 +333,24 @@ class Renderer:
         return kernels.unit_rows(n, 1e-12)
 
     def _floor(
-        self, scene: Scene, geo: Geometry, eye: np.ndarray, rays: np.ndarray, needed: np.ndarray
+        self,
+        scene: Scene,
+        geo: Geometry,
+        eye: np.ndarray,
+        rays: np.ndarray,
+        needed: np.ndarray,
+        merged: tuple[np.ndarray, np.ndarray, int, int] | None = None,
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Colour (N, 3), camera depth (N,) (inf = none) and reference-object mask (N,) along scene-frame rays.
 
         ``rays`` have camera z = 1, so the ray parameter at the floor is the camera depth. The colour is computed
         only where ``needed`` (any shape, N values; elsewhere 0: the mesh hides those pixel centres and their
-        neighbourhood).
+        neighbourhood). ``merged``: ``_merge(geo.feet() + geo.legs())``'s vertices and faces and how many of them
+        are the feet's, where the caller has them.
         """
+        if merged is None:
+            verts, faces, _ = _merge(geo.feet() + geo.legs())
+            merged = (verts, faces, sum(len(m.vertices) for m in geo.feet()), sum(len(m.faces) for m in geo.feet()))
         ref = scene.reference
         if ref is not None:
             ref_args = textures.reference_params(ref.kind, ref.tint, ref.salt)[2:]
@@ -346,8 +360,9 @@ class Renderer:
             ref_origin, ref_angle = np.zeros(2), 0.0
         light = scene.light_dir
         if eye[2] > 0:
-            cast = self._floor_shadow(geo, light)
-            contact = self._contact_shadow(geo)
+            verts, faces, n_foot_verts, n_foot_faces = merged
+            cast = self._floor_shadow(verts, faces, light)
+            contact = self._contact_shadow(verts[:n_foot_verts], faces[:n_foot_faces])
         else:  # the camera is under the floor: the floor is one-sided and not seen
             cast = contact = (np.zeros((1, 1)), np.zeros(2), 1.0)
         table, *floor_args = textures.floor_params(scene.floor)
@@ -372,19 +387,20 @@ class Renderer:
             needed.reshape(-1),
         )
 
-    def _floor_shadow(self, geo: Geometry, light: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
-        """Cast shadow map of foot and leg on the floor, 0..1: their projection along the light, blurred."""
-        verts, faces, _ = _merge(geo.feet() + geo.legs())
+    def _floor_shadow(
+        self, verts: np.ndarray, faces: np.ndarray, light: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, float]:
+        """Cast shadow map of the feet and legs (``verts``, ``faces`` merged) on the floor, 0..1: their projection
+        along the light, blurred."""
         flat = verts[:, :2] - verts[:, 2:3] * (light[:2] / light[2])[None]
         # a closed surface's shadow is that of its faces turned to the light: counter-clockwise on the floor seen
         # from above, which the rasteriser (y-down convention) keeps after re-winding
         faces = faces[:, [0, 2, 1]]
         return _coverage_map(flat, np.ones(len(flat)), faces, texel=3.0, blur_mm=4.0, mode="cover")
 
-    def _contact_shadow(self, geo: Geometry) -> tuple[np.ndarray, np.ndarray, float]:
-        """Ambient occlusion map under the foot, 0..1 (the floor is darkened by 0.6 of it): strong where the sole
-        is close to the floor, blurred."""
-        v, faces, _ = _merge(geo.feet())
+    def _contact_shadow(self, v: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
+        """Ambient occlusion map under the feet (``v``, ``faces`` merged), 0..1 (the floor is darkened by 0.6 of
+        it): strong where the sole is close to the floor, blurred."""
         # the faces seen from below (the sole side) are clockwise seen from above: kept as they are
         return _coverage_map(v[:, :2], v[:, 2], faces, texel=3.0, blur_mm=10.0, mode="height")
 
@@ -485,24 +501,15 @@ def _tube(
     cap_top: bool,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Elliptic tube rings at ``heights`` along ``axis``; faces wound outwards (or inwards), top optionally closed."""
-    t = np.linspace(0, 2 * np.pi, LEG_SEGMENTS, endpoint=False)
     # rings every LEG_RING_MM at most: long thin triangles would make the rasteriser test huge bounding boxes
     steps = max(int(np.ceil((heights[-1] - heights[0]) / LEG_RING_MM)), 1)
     heights = np.linspace(heights[0], heights[-1], steps + 1)
-    ring = a * np.cos(t)[:, None] * e1 + b * np.sin(t)[:, None] * e2  # (n, 3)
+    ring = a * _RING_COS * e1 + b * _RING_SIN * e2  # (n, 3)
     scale = np.array([width(h) for h in heights])
     verts = (centre + heights[:, None, None] * axis + scale[:, None, None] * ring).reshape(-1, 3)
-    n = LEG_SEGMENTS
-    i = np.arange(n)
-    p = (np.arange(len(heights) - 1) * n)[:, None] + i  # (rings - 1, n)
-    q = (np.arange(len(heights) - 1) * n)[:, None] + (i + 1) % n
-    # per ring: its n quads' first triangles, then their second ones
-    faces = np.stack([np.stack([p, q, q + n], -1), np.stack([p, q + n, p + n], -1)], 1).reshape(-1, 3)
+    faces = _tube_faces(len(heights), cap_top)
     if cap_top:
-        top = len(verts)
         verts = np.concatenate([verts, (centre + heights[-1] * axis)[None]])
-        last = (len(heights) - 1) * n
-        faces = np.concatenate([faces, np.stack([last + i, last + (i + 1) % n, np.full(n, top)], 1)])
     # orient: the first side face's normal must point away from the axis (or towards it for an inner surface)
     f0 = faces[0]
     normal = np.cross(verts[f0[1]] - verts[f0[0]], verts[f0[2]] - verts[f0[0]])
@@ -510,6 +517,27 @@ def _tube(
     if (normal @ radial > 0) != outward:
         faces = faces[:, [0, 2, 1]]
     return verts, faces
+
+
+_RING_ANGLES = np.linspace(0, 2 * np.pi, LEG_SEGMENTS, endpoint=False)
+_RING_COS = np.cos(_RING_ANGLES)[:, None]
+_RING_SIN = np.sin(_RING_ANGLES)[:, None]
+
+
+@functools.lru_cache(maxsize=64)
+def _tube_faces(rings: int, cap_top: bool) -> np.ndarray:
+    """(F, 3) faces of ``rings`` rings of LEG_SEGMENTS vertices (read-only; with the top's centre after them)."""
+    n = LEG_SEGMENTS
+    i = np.arange(n)
+    p = (np.arange(rings - 1) * n)[:, None] + i  # (rings - 1, n)
+    q = (np.arange(rings - 1) * n)[:, None] + (i + 1) % n
+    # per ring: its n quads' first triangles, then their second ones
+    faces = np.stack([np.stack([p, q, q + n], -1), np.stack([p, q + n, p + n], -1)], 1).reshape(-1, 3)
+    if cap_top:
+        top, last = rings * n, (rings - 1) * n
+        faces = np.concatenate([faces, np.stack([last + i, last + (i + 1) % n, np.full(n, top)], 1)])
+    faces.setflags(write=False)
+    return faces
 
 
 def _rot_x(a: float) -> np.ndarray:
