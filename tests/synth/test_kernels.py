@@ -227,13 +227,14 @@ def test_nearest_distance_and_bilinear():
     np.testing.assert_allclose(got, top * (1 - fy) + bottom * fy, rtol=0, atol=1e-15)
 
 
-def _numpy_depth_noise(depth, rng):
-    """The former numpy ``render.depth_noise``."""
+def _numpy_depth_noise(depth, normal, u):
+    """The former numpy ``render.depth_noise`` after its draws (standard normals, then uniforms, both like
+    ``depth``)."""
     from footmesh.synth import render as r
 
     z = depth.astype(np.float64)
     sigma = r.DEPTH_NOISE_A_MM + r.DEPTH_NOISE_B_PER_MM * z * z
-    noisy = z + rng.standard_normal(z.shape) * sigma
+    noisy = z + normal * sigma
     jump = np.zeros(z.shape, dtype=bool)
     limit = np.maximum(r.DEPTH_EDGE_JUMP[0], r.DEPTH_EDGE_JUMP[1] * z)
     dy = np.abs(np.diff(z, axis=0)) > np.minimum(limit[1:], limit[:-1])
@@ -242,7 +243,6 @@ def _numpy_depth_noise(depth, rng):
     jump[:-1] |= dy
     jump[:, 1:] |= dx
     jump[:, :-1] |= dx
-    u = rng.random(z.shape)
     drop = (jump & (u < r.DEPTH_EDGE_DROPOUT)) | (u > 1.0 - r.DEPTH_RANDOM_DROPOUT)
     drop |= (z < r.DEPTH_RANGE_MM[0]) | (z > r.DEPTH_RANGE_MM[1])
     return np.where(drop, 0, np.clip(np.round(noisy), 0, 65535)).astype(np.uint16)
@@ -256,12 +256,35 @@ def test_depth_noise_and_rgb_quantisation_match_numpy():
     depth[5:20, 10:30] = 400.0 + rng.normal(0, 2, (15, 20))  # a surface with edges around it
     depth[rng.random(depth.shape) < 0.1] = 0.0
     got = depth_noise(depth, np.random.default_rng(8))
-    assert got.dtype == np.uint16 and got.tobytes() == _numpy_depth_noise(depth, np.random.default_rng(8)).tobytes()
+    seeds = np.random.default_rng(8).integers(2**63, size=2)
+    normal = kernels.gaussians(int(seeds[0]), depth.size, 1.0).reshape(depth.shape)
+    u = kernels.uniforms(int(seeds[1]), depth.size).reshape(depth.shape)
+    assert got.dtype == np.uint16 and got.tobytes() == _numpy_depth_noise(depth, normal, u).tobytes()
     rgb = rng.uniform(-0.05, 1.05, (30, 20, 3))
     noise = rng.normal(0, 0.01, rgb.shape)
     rgb[0, 0, 0], noise[0, 0, 0] = 0.5 / 255.0, 0.0  # a tie: rounds half to even
     want = np.clip(np.round((rgb + noise) * 255.0), 0, 255).astype(np.uint8)
     assert kernels.rgb_to_uint8(rgb, noise).tobytes() == want.tobytes()
+    fused = kernels.noisy_rgb_to_uint8(rgb, 0.01, 5)
+    assert (
+        fused.tobytes() == kernels.rgb_to_uint8(rgb, kernels.gaussians(5, rgb.size, 0.01).reshape(rgb.shape)).tobytes()
+    )
+
+
+def test_compiled_draws_are_standard_normal_and_uniform():
+    from scipy import stats
+
+    z = kernels.gaussians(123, 2_000_000, 1.0)
+    assert z.tobytes() == kernels.gaussians(123, 2_000_000, 1.0).tobytes()  # a function of the seed
+    assert not np.array_equal(z[:100], kernels.gaussians(124, 100, 1.0))
+    assert abs(z.mean()) < 0.003 and abs(z.std() - 1.0) < 0.003
+    assert stats.kstest(z, "norm").pvalue > 1e-3
+    # the ziggurat's tail (beyond ZIG_R) and its wedges: the right mass beyond 3.44 and 4 (SE about 4 %, 11 %)
+    for x, rtol in ((kernels.ZIG_R, 0.15), (4.0, 0.4)):
+        assert abs((np.abs(z) > x).mean() / (2 * stats.norm.sf(x)) - 1.0) < rtol
+    np.testing.assert_allclose(kernels.gaussians(123, 10, 2.5), 2.5 * z[:10], rtol=0, atol=0)
+    u = kernels.uniforms(7, 1_000_000)
+    assert u.min() >= 0.0 and u.max() < 1.0 and stats.kstest(u, "uniform").pvalue > 1e-3
 
 
 def test_normals_match_geometry_mesh():

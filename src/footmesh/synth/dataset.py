@@ -63,13 +63,15 @@ from footmesh.synth.scene import SynthConfig
 CHUNK = 256
 """Samples per chunk file."""
 META = "meta.json"
-FORMAT = "footmesh-synth-3"
+FORMAT = "footmesh-synth-4"
 """What ``meta.json``'s ``format`` says this version writes; a new one whenever the same (seed, n, settings) would
 give other bytes. 1: the first. 2: IK poses (15 % of samples) solved by ``synth.posing`` (compiled) instead of
 ``model.ik`` (torch): the same algorithm and distribution, but other rounding, and about half of those feet
 take another exact solution of the redundant toe chains (the seeds tie to within rounding). 3: the same arrays
-as 2, deflated by ISA-L instead of zlib (other bytes, about 6 % larger)."""
-FORMATS_READ = ("footmesh-synth-1", "footmesh-synth-2", FORMAT)
+as 2, deflated by ISA-L instead of zlib (other bytes, about 6 % larger). 4: the sensor noise (RGB and depth)
+drawn by compiled kernels (SplitMix64, a ziggurat) instead of numpy's generator, and the floor's camera rays
+made inside ``kernels.floor_shade`` (other draws; floor depth rounded otherwise, within about 1e-13 relative)."""
+FORMATS_READ = ("footmesh-synth-1", "footmesh-synth-2", "footmesh-synth-3", FORMAT)
 """Formats ``SynthDataset`` reads (every one so far: same keys, shapes and units); a folder of another is refused."""
 COMPRESS_LEVEL = 1
 """Deflate level of the chunk files' members (ISA-L's igzip, ``isal``): its level 1 deflates a sample in about

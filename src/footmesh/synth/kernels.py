@@ -344,6 +344,7 @@ def reference_texture(table, bits, kind, length, width, margin, card, tint, salt
 @_jit
 def floor_shade(
     rays,
+    width,
     eye,
     far,
     background,
@@ -376,7 +377,8 @@ def floor_shade(
     light_colour,
     needed,
 ):  # pragma: no cover
-    """The floor seen along scene-frame ``rays`` (N, 3) with camera z = 1 from ``eye``.
+    """The floor seen from ``eye`` at the N = ``width``^2 pixel centres (row-major): pixel (column c, row r) looks
+    along the scene-frame direction ``(c, r, 1) @ rays`` (``rays`` (3, 3) = ``inv(K).T @ R``; camera z = 1).
 
     Returns colour (N, 3), depth (N,) (the ray parameter, = camera z; inf = none) and the reference mask (N,).
     Rays that miss the floor within ``far`` mm (or any ray when the eye is under the floor) see the wall
@@ -386,14 +388,22 @@ def floor_shade(
     False (the mesh hides the point and its neighbours) only depth and the reference mask are computed, and the
     colour is 0.
     """
-    n = rays.shape[0]
+    n = width * width
     colour = np.empty((n, 3))
     depth = np.full(n, np.inf)
     ref_hit = np.zeros(n, dtype=np.bool_)
     albedo = np.empty(3)
     rc, rs = math.cos(ref_angle), math.sin(ref_angle)
+    col, row = -1.0, 0.0  # pixel k's column and row (k = row * width + col), counted without a division
+    last = np.float64(width - 1)
     for k in range(n):
-        rx, ry, rz = rays[k, 0], rays[k, 1], rays[k, 2]
+        if col == last:
+            col, row = 0.0, row + 1.0
+        else:
+            col += 1.0
+        rx = col * rays[0, 0] + row * rays[1, 0] + rays[2, 0]
+        ry = col * rays[0, 1] + row * rays[1, 1] + rays[2, 1]
+        rz = col * rays[0, 2] + row * rays[1, 2] + rays[2, 2]
         norm = math.sqrt(rx * rx + ry * ry + rz * rz)
         t = -eye[2] / rz if (rz < 0 and eye[2] > 0) else np.inf
         if not t * norm < far:
@@ -518,6 +528,106 @@ def rgb_to_uint8(rgb, noise):  # pragma: no cover
     flat_in, flat_noise, flat_out = rgb.reshape(-1), noise.reshape(-1), out.reshape(-1)
     for k in range(flat_in.shape[0]):
         flat_out[k] = np.uint8(min(max(np.rint((flat_in[k] + flat_noise[k]) * 255.0), 0.0), 255.0))
+    return out
+
+
+# --- Gaussian and uniform draws (SplitMix64 and Doornik's ZIGNOR ziggurat) ---------------------------------------
+
+_GOLDEN = np.uint64(0x9E3779B97F4A7C15)
+_MIX1 = np.uint64(0xBF58476D1CE4E5B9)
+_MIX2 = np.uint64(0x94D049BB133111EB)
+_S30, _S27, _S31, _S11 = np.uint64(30), np.uint64(27), np.uint64(31), np.uint64(11)
+_LOW7 = np.uint64(127)
+_ONE = np.uint64(1)
+_TWO_M53 = 2.0**-53
+ZIG_R = 3.442619855899
+"""ZIGNOR's start of the tail (128 blocks; Doornik 2005, "An improved ziggurat method to generate normal random
+samples")."""
+ZIG_V = 9.91256303526217e-3
+"""ZIGNOR's block area (128 blocks)."""
+
+
+def _ziggurat_tables(blocks: int = 128, r: float = ZIG_R, v: float = ZIG_V) -> tuple[np.ndarray, np.ndarray]:
+    """ZIGNOR's block edges x (blocks + 1,) and ratios x[i + 1] / x[i] (blocks,), as Doornik's ``zigNorInit``."""
+    x = np.zeros(blocks + 1)
+    f = math.exp(-0.5 * r * r)
+    x[0], x[1] = v / f, r
+    for i in range(2, blocks):
+        x[i] = math.sqrt(-2.0 * math.log(v / x[i - 1] + f))
+        f = math.exp(-0.5 * x[i] * x[i])
+    return x, x[1:] / x[:-1]
+
+
+_ZIG_X, _ZIG_RATIO = _ziggurat_tables()
+
+
+@_jit_inline
+def _splitmix64(state):  # pragma: no cover
+    """SplitMix64 (Steele, Lea, Flood 2014; Vigna's constants): (next state, 64 random bits)."""
+    state = state + _GOLDEN
+    z = state
+    z = (z ^ (z >> _S30)) * _MIX1
+    z = (z ^ (z >> _S27)) * _MIX2
+    return state, z ^ (z >> _S31)
+
+
+@_jit_inline
+def _gauss(state):  # pragma: no cover
+    """(next state, one standard normal draw): ZIGNOR, its uniform from the upper 53 bits of a SplitMix64 output
+    and its block from the lowest 7 (disjoint bits), the tail by Marsaglia's exponential rejection."""
+    while True:
+        state, bits = _splitmix64(state)
+        u = 2.0 * (np.float64(np.int64(bits >> _S11)) * _TWO_M53) - 1.0
+        i = np.int64(bits & _LOW7)
+        if abs(u) < _ZIG_RATIO[i]:
+            return state, u * _ZIG_X[i]
+        if i == 0:  # the bottom block's overhang: the tail beyond ZIG_R
+            while True:
+                state, b1 = _splitmix64(state)
+                state, b2 = _splitmix64(state)
+                x = math.log(np.float64(np.int64((b1 >> _S11) + _ONE)) * _TWO_M53) / ZIG_R  # log of (0, 1]
+                y = math.log(np.float64(np.int64((b2 >> _S11) + _ONE)) * _TWO_M53)
+                if -2.0 * y >= x * x:
+                    return state, (x - ZIG_R) if u < 0 else (ZIG_R - x)
+        x = u * _ZIG_X[i]
+        f0 = math.exp(-0.5 * (_ZIG_X[i] * _ZIG_X[i] - x * x))
+        f1 = math.exp(-0.5 * (_ZIG_X[i + 1] * _ZIG_X[i + 1] - x * x))
+        state, b = _splitmix64(state)
+        if f1 + np.float64(np.int64(b >> _S11)) * _TWO_M53 * (f0 - f1) < 1.0:
+            return state, x
+
+
+@_jit
+def gaussians(seed, n, scale):  # pragma: no cover
+    """(n,) ``scale`` times standard normal draws, a function of ``seed`` (0 <= seed < 2**63) alone."""
+    out = np.empty(n)
+    state = np.uint64(seed)
+    for k in range(n):
+        state, z = _gauss(state)
+        out[k] = scale * z
+    return out
+
+
+@_jit
+def uniforms(seed, n):  # pragma: no cover
+    """(n,) uniform draws on [0, 1) (multiples of 2**-53), a function of ``seed`` (0 <= seed < 2**63) alone."""
+    out = np.empty(n)
+    state = np.uint64(seed)
+    for k in range(n):
+        state, bits = _splitmix64(state)
+        out[k] = np.float64(np.int64(bits >> _S11)) * _TWO_M53
+    return out
+
+
+@_jit
+def noisy_rgb_to_uint8(rgb, sd, seed):  # pragma: no cover
+    """``rgb_to_uint8(rgb, gaussians(seed, rgb.size, sd).reshape(rgb.shape))`` without the noise array."""
+    out = np.empty(rgb.shape, dtype=np.uint8)
+    flat_in, flat_out = rgb.reshape(-1), out.reshape(-1)
+    state = np.uint64(seed)
+    for k in range(flat_in.shape[0]):
+        state, z = _gauss(state)
+        flat_out[k] = np.uint8(min(max(np.rint((flat_in[k] + sd * z) * 255.0), 0.0), 255.0))
     return out
 
 

@@ -16,6 +16,8 @@ Image formation (per sample; the per-sample and per-pixel loops are compiled wit
    ``kernels.floor_shade`` does all of it per pixel centre, skipping the texture where the mesh hides the pixel
    and its neighbours (``kernels.floor_needed``); the shadow maps are rasterised and blurred first.
 5. Sensor noise: RGB gets Gaussian noise of ``SynthConfig.rgb_noise_sd`` (0..1 units); depth gets ``depth_noise``.
+   The draws are compiled (``kernels.gaussians``, ``kernels.uniforms``: SplitMix64 and a ziggurat, since format
+   4), seeded from the sample's ``noise_seed``.
 """
 
 from __future__ import annotations
@@ -122,9 +124,6 @@ class Renderer:
         # (V, F) vertex-face incidence: vertex normals = incidence @ face normals (area weighted)
         self._incidence = sparse.csr_matrix((np.ones(rows.size), (faces.reshape(-1), rows)), shape=(nv, len(faces)))
         normals = vertex_normals(mean, faces)
-        size = config.size
-        jj, ii = np.meshgrid(np.arange(size, dtype=np.float64), np.arange(size, dtype=np.float64))
-        self._pix = np.stack([jj.ravel(), ii.ravel(), np.ones(size * size)], axis=1)  # (S^2, 3) pixel centres
         self.cap = np.flatnonzero((mean[:, 2] > CAP_MIN_HEIGHT_MM) & (normals[:, 2] > CAP_NORMAL_Z))
         if len(self.cap) < 8:
             raise ValueError(f"foot model: found only {len(self.cap)} ankle-cap vertices to grow the leg from")
@@ -267,13 +266,14 @@ class Renderer:
         # floor, reference object and background: evaluated at the pixel centres (exact depth and labels), and
         # upsampled bilinearly to the samples between them, where the mesh does not cover them
         eye = -rot.T @ trans
-        rays = self._pix @ np.linalg.inv(k).T @ rot  # scene-frame directions with camera z = 1
+        # scene-frame direction with camera z = 1 of pixel (column c, row r): (c, r, 1) @ rays
+        rays = np.linalg.inv(k).T @ rot
         n_foot_verts = sum(len(m.vertices) for m in feet)
         floor_rgb, floor_depth, ref_hit = self._floor(
             scene, geo, eye, rays, kernels.floor_needed(frag.face), (verts, faces, n_foot_verts, n_foot_faces)
         )
         rgb = kernels.compose(frag.face, frag.bary, faces, v_colour, floor_rgb.reshape(size, size, 3))
-        rgb = kernels.rgb_to_uint8(rgb, rng.normal(0.0, self.config.rgb_noise_sd, rgb.shape))
+        rgb = kernels.noisy_rgb_to_uint8(rgb, self.config.rgb_noise_sd, int(rng.integers(2**63)))
 
         # labels at pixel centres (odd samples)
         centre_face = frag.face[1::2, 1::2]
@@ -341,11 +341,13 @@ class Renderer:
         needed: np.ndarray,
         merged: tuple[np.ndarray, np.ndarray, int, int] | None = None,
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Colour (N, 3), camera depth (N,) (inf = none) and reference-object mask (N,) along scene-frame rays.
+        """Colour (N, 3), camera depth (N,) (inf = none) and reference-object mask (N,) at the N = S^2 pixel
+        centres (row-major).
 
-        ``rays`` have camera z = 1, so the ray parameter at the floor is the camera depth. The colour is computed
-        only where ``needed`` (any shape, N values; elsewhere 0: the mesh hides those pixel centres and their
-        neighbourhood). ``merged``: ``_merge(geo.feet() + geo.legs())``'s vertices and faces and how many of them
+        ``rays`` (3, 3): pixel (column c, row r) looks along the scene-frame direction ``(c, r, 1) @ rays``
+        (``inv(K).T @ R``), whose camera z is 1, so the ray parameter at the floor is the camera depth. The colour
+        is computed only where ``needed`` (any shape, N values; elsewhere 0: the mesh hides those pixel centres and
+        their neighbourhood). ``merged``: ``_merge(geo.feet() + geo.legs())``'s vertices and faces and how many of them
         are the feet's, where the caller has them.
         """
         if merged is None:
@@ -368,6 +370,7 @@ class Renderer:
         table, *floor_args = textures.floor_params(scene.floor)
         return kernels.floor_shade(
             np.ascontiguousarray(rays),
+            self.config.size,
             eye,
             FAR_MM,
             textures.background_tint(scene.floor.salt),
@@ -470,11 +473,13 @@ def depth_noise(depth: np.ndarray, rng: np.random.Generator) -> np.ndarray:
 
     ``z + N(0, sigma(z))`` with ``sigma(z) = DEPTH_NOISE_A_MM + DEPTH_NOISE_B_PER_MM z^2``; dropouts: pixels on a
     depth edge (``DEPTH_EDGE_JUMP``) vanish with probability ``DEPTH_EDGE_DROPOUT``, any pixel with
-    ``DEPTH_RANDOM_DROPOUT``; outside ``DEPTH_RANGE_MM`` the depth is missing; rounded to whole millimetres.
+    ``DEPTH_RANDOM_DROPOUT``; outside ``DEPTH_RANGE_MM`` the depth is missing; rounded to whole millimetres. The
+    draws: ``kernels.gaussians`` and ``kernels.uniforms`` of two seeds drawn from ``rng``.
     """
     z = np.ascontiguousarray(depth, dtype=np.float64)
-    normal = rng.standard_normal(z.shape)
-    u = rng.random(z.shape)
+    seeds = rng.integers(2**63, size=2)
+    normal = kernels.gaussians(int(seeds[0]), z.size, 1.0).reshape(z.shape)
+    u = kernels.uniforms(int(seeds[1]), z.size).reshape(z.shape)
     return kernels.depth_sensor(
         z,
         normal,
