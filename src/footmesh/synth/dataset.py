@@ -70,7 +70,8 @@ give other bytes. 1: the first. 2: IK poses (15 % of samples) solved by ``synth.
 take another exact solution of the redundant toe chains (the seeds tie to within rounding). 3: the same arrays
 as 2, deflated by ISA-L instead of zlib (other bytes, about 6 % larger). 4: the sensor noise (RGB and depth)
 drawn by compiled kernels (SplitMix64, a ziggurat) instead of numpy's generator, and the floor's camera rays
-made inside ``kernels.floor_shade`` (other draws; floor depth rounded otherwise, within about 1e-13 relative)."""
+made inside ``kernels.floor_shade`` (other draws; floor depth rounded otherwise, within about 1e-13 relative),
+and coarser shadow maps (``render.CAST_TEXEL_MM``, ``CONTACT_TEXEL_MM``: RGB differs along shadow edges)."""
 FORMATS_READ = ("footmesh-synth-1", "footmesh-synth-2", "footmesh-synth-3", FORMAT)
 """Formats ``SynthDataset`` reads (every one so far: same keys, shapes and units); a folder of another is refused."""
 COMPRESS_LEVEL = 1

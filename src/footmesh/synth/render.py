@@ -70,6 +70,11 @@ CAP_MIN_HEIGHT_MM = 100.0
 CAP_NORMAL_Z = 0.8
 """The model's ankle cap: template vertices above this height whose normal points up this much."""
 
+CAST_TEXEL_MM = 4.0
+CONTACT_TEXEL_MM = 5.0
+"""Texel sizes of the cast shadow map (blurred with SD 4 mm: 1 texel) and the contact shadow map (SD 10 mm: 2
+texels), read bilinearly; 3 mm each before format 4 (2.8 and 1.8 times as many texels, the same look)."""
+
 LABEL_BACKGROUND, LABEL_FOOT, LABEL_LEG, LABEL_REFERENCE = 0, 1, 2, 3
 
 
@@ -399,13 +404,13 @@ class Renderer:
         # a closed surface's shadow is that of its faces turned to the light: counter-clockwise on the floor seen
         # from above, which the rasteriser (y-down convention) keeps after re-winding
         faces = faces[:, [0, 2, 1]]
-        return _coverage_map(flat, np.ones(len(flat)), faces, texel=3.0, blur_mm=4.0, mode="cover")
+        return _coverage_map(flat, np.ones(len(flat)), faces, texel=CAST_TEXEL_MM, blur_mm=4.0, mode="cover")
 
     def _contact_shadow(self, v: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
         """Ambient occlusion map under the feet (``v``, ``faces`` merged), 0..1 (the floor is darkened by 0.6 of
         it): strong where the sole is close to the floor, blurred."""
         # the faces seen from below (the sole side) are clockwise seen from above: kept as they are
-        return _coverage_map(v[:, :2], v[:, 2], faces, texel=3.0, blur_mm=10.0, mode="height")
+        return _coverage_map(v[:, :2], v[:, 2], faces, texel=CONTACT_TEXEL_MM, blur_mm=10.0, mode="height")
 
 
 def _mesh_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
