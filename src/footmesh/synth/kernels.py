@@ -5,7 +5,9 @@
 - ``floor_shade``: the floor along the camera rays (ray-plane intersection, procedural texture, reference object,
   cast and contact shadow maps read bilinearly, Lambert light), with the textures of ``textures`` per point
   (``floor_albedo``, ``reference_albedo``, ``value_noise``, ``lattice``);
-- ``nearest_distance``: joint-to-skin distances for joint visibility.
+- ``nearest_distance``: joint-to-skin distances for joint visibility;
+- ``gaussians``, ``uniforms``, ``noisy_rgb_to_uint8``: the sensor noise's draws (SplitMix64 and Doornik's
+  ZIGNOR ziggurat), functions of a seed alone.
 
 Determinism: plain sequential loops, no ``fastmath`` (no reassociation, no fused multiply-add), no ``parallel``;
 the same inputs give the same bits on every run, compiled afresh or loaded from numba's cache. Compilation of
