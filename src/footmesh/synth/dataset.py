@@ -45,6 +45,7 @@ index                  () int64             global sample index
 from __future__ import annotations
 
 import io
+import itertools
 import json
 import os
 import struct
@@ -57,7 +58,7 @@ import numpy as np
 from torch.utils.data import Dataset
 
 from footmesh import __version__
-from footmesh.report import atomic_path
+from footmesh.report import ZIP_DATE_TIME, atomic_path
 from footmesh.synth.scene import SynthConfig
 
 CHUNK = 256
@@ -123,8 +124,8 @@ class _ZipWriter:
     """A minimal zip writer (PKWARE APPNOTE 4.3: local headers, central directory, end record; no zip64) whose
     members are ``.npy`` files deflated by ISA-L, dated 1980-01-01 (``report.ZIP_DATE_TIME``), mode 0644."""
 
-    _DOS_DATE = (0 << 9) | (1 << 5) | 1  # 1980-01-01
-    _DOS_TIME = 0
+    _DOS_DATE = ((ZIP_DATE_TIME[0] - 1980) << 9) | (ZIP_DATE_TIME[1] << 5) | ZIP_DATE_TIME[2]
+    _DOS_TIME = (ZIP_DATE_TIME[3] << 11) | (ZIP_DATE_TIME[4] << 5) | (ZIP_DATE_TIME[5] // 2)
     _MAX = 0xFFFF_FFFF
 
     def __init__(self, f) -> None:
@@ -307,17 +308,12 @@ def _ordered_map(executor, func: Callable, args: list, window: int) -> Iterator:
     """``map(func, args)`` on ``executor``, in order, with at most ``window`` calls submitted ahead."""
     from collections import deque
 
-    queue: deque = deque()
-    it = iter(args)
-    for a in it:
-        queue.append(executor.submit(func, a))
-        if len(queue) >= window:
-            break
+    pending = iter(args)
+    queue: deque = deque(executor.submit(func, a) for a in itertools.islice(pending, window))
     while queue:
         result = queue.popleft().result()
-        for a in it:
+        for a in itertools.islice(pending, 1):
             queue.append(executor.submit(func, a))
-            break
         yield result
 
 

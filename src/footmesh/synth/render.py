@@ -344,7 +344,7 @@ class Renderer:
         eye: np.ndarray,
         rays: np.ndarray,
         needed: np.ndarray,
-        merged: tuple[np.ndarray, np.ndarray, int, int] | None = None,
+        merged: tuple[np.ndarray, np.ndarray, int, int],
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Colour (N, 3), camera depth (N,) (inf = none) and reference-object mask (N,) at the N = S^2 pixel
         centres (row-major).
@@ -353,11 +353,8 @@ class Renderer:
         (``inv(K).T @ R``), whose camera z is 1, so the ray parameter at the floor is the camera depth. The colour
         is computed only where ``needed`` (any shape, N values; elsewhere 0: the mesh hides those pixel centres and
         their neighbourhood). ``merged``: ``_merge(geo.feet() + geo.legs())``'s vertices and faces and how many of them
-        are the feet's, where the caller has them.
+        are the feet's (``render`` has them already).
         """
-        if merged is None:
-            verts, faces, _ = _merge(geo.feet() + geo.legs())
-            merged = (verts, faces, sum(len(m.vertices) for m in geo.feet()), sum(len(m.faces) for m in geo.feet()))
         ref = scene.reference
         if ref is not None:
             ref_args = textures.reference_params(ref.kind, ref.tint, ref.salt)[2:]
