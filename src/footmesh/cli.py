@@ -459,13 +459,14 @@ def _add_eval_commands(sub: argparse._SubParsersAction) -> None:
     meas.add_argument("--size", type=int, default=640, help="photo side, px (default 640)")
     meas.add_argument(
         "--views",
-        choices=("random", "thesis", "guided", "ood", "sweep", "tele"),
+        choices=("random", "thesis", "guided", "ood", "sweep", "tele", "front", "front_tele"),
         default="random",
         help="camera views: random (any side and height), thesis (its 22 viewpoints), guided (as the photo guide "
         "asks: from the side and above, foot flat on the floor), ood (unlike the training renders: other fields of "
         "view and distances, lifted and posed feet, a leg stump, re-toned skin, heavier noise), sweep (flat feet "
         "from every side and height, end-on included: benchmarks/bench_end_on.py), tele (the guided views through a "
-        "2x-3x lens)",
+        "2x-3x lens), front (from in front of the toes and above, the foot on the sheet and the shin hiding the heel, "
+        "as most real photos are taken), front_tele (the same through a 2x-3x lens)",
     )
     meas.add_argument(
         "--withhold-intrinsics",

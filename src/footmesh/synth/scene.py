@@ -78,6 +78,8 @@ class SynthConfig:
     reference_probs: dict[str, float] = field(
         default_factory=lambda: {"none": 0.25, **{k.name: k.synth_share for k in references.KINDS}}
     )
+    sheet_under_foot_fraction: float = 0.4
+    """Share of the sheets (A4, letter) that the foot stands on; the others lie beside it."""
     other_foot_fraction: float = 0.0
     """Share of samples showing the other foot and leg beside the first (both labelled foot; joints of the first)."""
     first_person_fraction: float = 0.0
@@ -98,7 +100,13 @@ class SynthConfig:
             raise ValueError(
                 f"azimuths must satisfy 0 <= min <= max <= 180 deg, got {self.min_azimuth_deg}, {self.max_azimuth_deg}"
             )
-        for name in ("other_foot_fraction", "first_person_fraction", "ik_fraction", "lifted_fraction"):
+        for name in (
+            "other_foot_fraction",
+            "first_person_fraction",
+            "ik_fraction",
+            "lifted_fraction",
+            "sheet_under_foot_fraction",
+        ):
             if not 0.0 <= getattr(self, name) <= 1.0:
                 raise ValueError(f"{name} must be in 0..1, got {getattr(self, name)}")
         if self.reference not in REFERENCE_CHOICES:
@@ -216,6 +224,24 @@ VIEW_PRESETS: dict[str, dict] = {
         elevation_deg=(35.0, 75.0),
         lifted_fraction=0.0,
     ),
+    # the way most real photos of a foot on a sheet are taken (issue 19, ../shared/real/a4): from in front of the
+    # toes and above, the shin rising out of the picture and hiding the heel
+    "front": dict(
+        max_azimuth_deg=35.0,
+        elevation_deg=(45.0, 85.0),
+        lifted_fraction=0.0,
+        leg_top_mm=(500.0, 800.0),
+        sheet_under_foot_fraction=1.0,
+    ),
+    # the same through a 2x-3x lens or cropped: the sheet, seen square, barely tells the focal length
+    "front_tele": dict(
+        fov_deg=(20.0, 36.0),
+        max_azimuth_deg=35.0,
+        elevation_deg=(45.0, 85.0),
+        lifted_fraction=0.0,
+        leg_top_mm=(500.0, 800.0),
+        sheet_under_foot_fraction=1.0,
+    ),
 }
 """Named sets of random views (``footmesh eval measure --views NAME``), each framing the reference object too."""
 
@@ -277,7 +303,7 @@ def sample_scene(seed: int, index: int, config: SynthConfig, num_components: int
         kind = kinds[int(rng.choice(len(kinds), p=probs / probs.sum()))]
     reference = None
     if kind != "none":
-        reference = _sample_reference(rng, kind, azimuth)
+        reference = _sample_reference(rng, kind, azimuth, config.sheet_under_foot_fraction)
     noise_seed = int(rng.integers(2**62))
     # drawn last, so that datasets made before these fields existed keep all their other values
     other_foot = None
@@ -326,9 +352,10 @@ def sample_scene(seed: int, index: int, config: SynthConfig, num_components: int
     )
 
 
-def _sample_reference(rng: np.random.Generator, kind: str, camera_azimuth: float) -> Reference:
-    """A reference object on the floor; its placement is relative to a nominal foot (heel at 0, 260 mm long)."""
-    under = references.kind(kind).detector == "sheet" and rng.random() < 0.4
+def _sample_reference(rng: np.random.Generator, kind: str, camera_azimuth: float, under_foot: float) -> Reference:
+    """A reference object on the floor; its placement is relative to a nominal foot (heel at 0, 260 mm long);
+    a sheet lies under the foot with probability ``under_foot``."""
+    under = references.kind(kind).detector == "sheet" and rng.random() < under_foot
     margin, length, width = reference_extent(kind)
     tint = tuple(float(c) for c in np.clip(rng.uniform(0.9, 1.0) - rng.uniform(0, 0.05, 3), 0, 1))
     salt = float(rng.uniform(0, 100))
