@@ -321,6 +321,12 @@ class MeasureConfig:
     against it. A guessed one (``default``: a phone's 26 mm-equivalent main camera) is often 2-3x short on real photos
     (the 2x / 3x lens, zoom, crops): the sheets of ``../shared/real/a4`` (no EXIF) give 1.3-3.1x on the three
     seen obliquely enough to tell. EXIF's 35 mm equivalent is right unless the photo was cropped."""
+    camera_distance_prior_mm: tuple[float, float] = (550.0, 0.5)
+    """Where the focal length is estimated (a guess, or EXIF), the camera's distance from the reference object is
+    taken to be log-normal with this median (mm) and SD of its log (``cues.reference.focal.distance_prior_scale``):
+    between a phone held crouching over the foot (0.3 m) and one held by a standing person (1-1.2 m); the photo
+    guide's views are rendered at 0.3-0.7 m. It decides where the sheet's perspective cannot: a sheet seen nearly
+    straight down, as in most real photos."""
     clear_paper: bool = True
     """With a white sheet found, the pixels of the foot's silhouette on it that are of the paper's colour (its
     shadow) are taken out before the fit (``cues.refine.clear_paper``)."""

@@ -346,7 +346,9 @@ def run_pipeline(photo: Photo, side: str, config: MeasureConfig, input: str = "a
         feet_mask = np.any([foot.mask for foot in feet], axis=0).astype(np.uint8)
         exclude = cv2.dilate(feet_mask, np.ones((15, 15), np.uint8)) > 0
         focal_prior = config.focal_prior_log_sd[photo.intrinsics.source]
-        searched = search_reference(rgb, K, exclude_mask=exclude, focal_prior_log_sd=focal_prior)
+        searched = search_reference(
+            rgb, K, exclude_mask=exclude, focal_prior_log_sd=focal_prior, distance_prior=config.camera_distance_prior_mm
+        )
         reference = searched.found
         if reference is None and searched.rejected is not None:
             notes.append(
@@ -543,7 +545,8 @@ def _measure_located(
     photo_K, K = K, (K if reference is None else reference.K)
     if abs(K[0, 0] / photo_K[0, 0] - 1.0) > 0.05:
         messages.append(
-            f"the focal length was taken from the perspective of {references.kind(reference.kind).described}: "
+            f"the focal length was estimated from the perspective of {references.kind(reference.kind).described} "
+            "and how far a phone is usually held from it: "
             f"{K[0, 0] / photo_K[0, 0]:.2f}x the {photo.intrinsics.source} one (known to "
             f"{100 * reference.focal_log_sd:.0f} %); pass --intrinsics for exact figures"
         )
@@ -660,7 +663,8 @@ def _intrinsics_dict(photo: Photo, reference: ReferenceObject | None, photo_K: n
         "fy": own["fy"] * factor,
         "source": "reference",
         "note": (
-            f"focal length from the perspective of {references.kind(reference.kind).described}: {factor:.2f}x the "
+            f"focal length from the perspective of {references.kind(reference.kind).described} and a phone's usual "
+            f"distance from it: {factor:.2f}x the "
             f"{own['source']} one ({own['fx']:.0f} px), known to {100 * reference.focal_log_sd:.0f} %"
         ),
     }

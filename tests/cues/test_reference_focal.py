@@ -85,3 +85,40 @@ def test_a_sheet_seen_through_a_tele_lens_is_found_without_its_focal_length(inde
     assert found.K[0, 0] == pytest.approx(K_true[0, 0], rel=0.1)
     cam = sample["cam_from_scene"]
     assert found.floor_distance_mm == pytest.approx(float(-cam[:3, 2] @ cam[:3, 3]), rel=0.1)
+
+
+def test_a_prior_on_the_camera_distance_weighs_by_how_well_the_focal_length_is_known():
+    # a well-measured focal length hardly moves; a guessed one moves most of the way to the prior's distance
+    assert focal_mod.distance_prior_scale(0.02, 300.0, 600.0, 0.5)[0] == pytest.approx(1.0, abs=0.005)
+    factor, log_sd = focal_mod.distance_prior_scale(0.7, 300.0, 600.0, 0.5)
+    expected = math.exp(math.log(2.0) * (1 / 0.5**2) / (1 / 0.7**2 + 1 / 0.5**2))
+    assert factor == pytest.approx(expected) and 1.4 < factor < 2.0
+    assert log_sd < 0.5 and log_sd == pytest.approx((1 / 0.7**2 + 1 / 0.5**2) ** -0.5)
+    # at the prior's own distance, or with the focal length held, nothing moves
+    assert focal_mod.distance_prior_scale(0.7, 600.0, 600.0, 0.5) == (pytest.approx(1.0), pytest.approx(log_sd))
+    assert focal_mod.distance_prior_scale(0.0, 300.0, 600.0, 0.5) == (1.0, 0.0)
+
+
+def test_a_sheet_seen_straight_down_through_a_tele_lens_takes_its_focal_length_from_the_camera_distance():
+    # a 2x-3x lens held about 0.6 m over the sheet, straight down
+    config = view_config(
+        "front_tele", size=640, reference="a4", elevation_deg=(84.0, 88.0), fov_deg=(36.0, 36.0), distance_mm=(600.0, 600.0)
+    )
+    sample = Renderer(config).render(7, 0)
+    K_true = np.asarray(sample["K"], dtype=np.float64)
+    assumed = focal_mod.with_focal_scale(K_true, 1.0 / 2.5)
+    exclude = (sample["labels"] == 1) | (sample["labels"] == 2)
+    perspective = search_reference(sample["rgb"], assumed, exclude_mask=exclude, focal_prior_log_sd=0.7).found
+    both = search_reference(
+        sample["rgb"], assumed, exclude_mask=exclude, focal_prior_log_sd=0.7, distance_prior=(550.0, 0.5)
+    ).found
+    assert perspective is not None and both is not None and both.kind == "a4"
+    # straight down the perspective keeps the guess, 2.5x short; the distance prior takes it a good part of the way
+    # (the camera stands 0.78 m away, farther than the prior's median: not all of it)
+    assert perspective.K[0, 0] / K_true[0, 0] < 0.5
+    assert abs(math.log(both.K[0, 0] / K_true[0, 0])) < 0.7 * abs(math.log(perspective.K[0, 0] / K_true[0, 0]))
+    assert both.focal_log_sd < perspective.focal_log_sd
+    # the floor moves with it: the camera stands farther, nearer the truth
+    cam = sample["cam_from_scene"]
+    true_height = float(-cam[:3, 2] @ cam[:3, 3])
+    assert abs(both.floor_distance_mm - true_height) < abs(perspective.floor_distance_mm - true_height)

@@ -95,7 +95,13 @@ def pipeline_search(path: str | os.PathLike):
     exclude = cv2.dilate(feet_mask, np.ones((DILATE_PX, DILATE_PX), np.uint8)) > 0
     start = time.perf_counter()
     focal_prior = config.focal_prior_log_sd[photo.intrinsics.source]
-    searched = search_reference(rgb, camera.K, exclude_mask=exclude, focal_prior_log_sd=focal_prior)
+    searched = search_reference(
+        rgb,
+        camera.K,
+        exclude_mask=exclude,
+        focal_prior_log_sd=focal_prior,
+        distance_prior=config.camera_distance_prior_mm,
+    )
     return photo, camera.K, to_photo, searched, time.perf_counter() - start
 
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 
@@ -91,10 +92,11 @@ def _finish(
     for sheet_kind in [k for k in SHEETS if k in kinds] if result is None else []:
         for sheet in _complete_sheet(quad, blurred, K, valid, lines=first, size_mm=SIZES_MM[sheet_kind]):
             # the quad's own reason stands: a completion is a guess
-            # completed with K's focal length: a completion's perspective says nothing of its own
+            # completed with K's focal length: a completion's perspective says nothing of its own, so that focal
+            # length stays as uncertain as the caller's
             result = _finish_quad(sheet, [sheet_kind], blurred, K, valid, completed=True)
             if result is not None:
-                return result
+                return result[0], replace(result[1], focal_log_sd=focal_prior_log_sd)
     return result
 
 

@@ -4,15 +4,18 @@ from __future__ import annotations
 
 import functools
 from collections.abc import Callable
+from dataclasses import replace
 
 import cv2
 import numpy as np
 
 from footmesh import references
+from footmesh.cues.reference import focal
 from footmesh.cues.reference.finish import _finish
 from footmesh.cues.reference.marker import _detect_marker, _overlaps
 from footmesh.cues.reference.objects import ReferenceObject, ReferenceSearch
 from footmesh.cues.reference.params import _KERNEL5, BLUR_SIGMA_PX, KINDS, MARKER_SHEET_SCALE, RECTANGLES, SHEETS
+from footmesh.cues.reference.pose import rectangle_pose
 from footmesh.cues.reference.quads import _candidate_groups, _canonical, _check_image, _check_intrinsics, _signed_area
 from footmesh.cues.reference.sides import _blank_inside, _fit_sides, _paper_beside
 
@@ -23,10 +26,11 @@ def detect_reference(
     kinds: tuple[str, ...] | list[str] = KINDS,
     exclude_mask: np.ndarray | None = None,
     focal_prior_log_sd: float = 0.0,
+    distance_prior: tuple[float, float] | None = None,
 ) -> ReferenceObject | None:
     """Find a reference object lying on the floor and the floor plane it gives; None when none is convincing
     (``search_reference``'s ``found``)."""
-    return search_reference(rgb, K, kinds, exclude_mask, focal_prior_log_sd).found
+    return search_reference(rgb, K, kinds, exclude_mask, focal_prior_log_sd, distance_prior).found
 
 
 def search_reference(
@@ -35,6 +39,7 @@ def search_reference(
     kinds: tuple[str, ...] | list[str] = KINDS,
     exclude_mask: np.ndarray | None = None,
     focal_prior_log_sd: float = 0.0,
+    distance_prior: tuple[float, float] | None = None,
 ) -> ReferenceSearch:
     """Find a reference object lying on the floor and the floor plane it gives, or say why none was taken.
 
@@ -48,11 +53,46 @@ def search_reference(
         focal_prior_log_sd: 0 when K's focal length is known; else the SD of its log (a guess, or a photo's EXIF):
             a sheet or card is then tested at the focal length that suits it, and found with the focal length its
             perspective gives (``ReferenceObject.K``; ``focal``).
+        distance_prior: (median mm, SD of the log) of the camera's distance from the object: where the focal
+            length is estimated, weighed in too (``focal.distance_prior_scale``); None: not used.
 
     Returns:
         ``ReferenceSearch``: the ``ReferenceObject`` (None: the caller reports the result as unscaled) and, when
         none was found, the reason the largest candidate was rejected.
     """
+    searched = _search(rgb, K, kinds, exclude_mask, focal_prior_log_sd)
+    if searched.found is None or distance_prior is None:
+        return searched
+    return ReferenceSearch(_with_distance_prior(searched.found, K, *distance_prior))
+
+
+def _with_distance_prior(found: ReferenceObject, K: np.ndarray, median_mm: float, log_sd: float) -> ReferenceObject:
+    """``found`` with its estimated focal length (``focal_log_sd`` > 0) weighed against a prior on the camera's
+    distance and its pose solved again; as it is when its focal length is held or no pose fits the new one.
+
+    Its shape was tested at the focal length of its perspective alone: the prior moves it far only where the
+    perspective barely tells it, which is where the shape barely depends on it."""
+    if found.focal_log_sd <= 0:
+        return found
+    factor, new_log_sd = focal.distance_prior_scale(found.focal_log_sd, found.object_distance_mm, median_mm, log_sd)
+    total = found.K[0, 0] * factor / K[0, 0]
+    total = min(max(total, focal.FOCAL_RANGE[0]), focal.FOCAL_RANGE[1])
+    new_K = focal.with_focal_scale(K, total)
+    solved = rectangle_pose(found.corners_px, found.kind, new_K)
+    if solved is None:
+        return found
+    pose, reprojection = solved
+    return replace(found, K=new_K, cam_from_floor=pose, reprojection_px=reprojection, focal_log_sd=new_log_sd)
+
+
+def _search(
+    rgb: np.ndarray,
+    K: np.ndarray,
+    kinds: tuple[str, ...] | list[str],
+    exclude_mask: np.ndarray | None,
+    focal_prior_log_sd: float,
+) -> ReferenceSearch:
+    """``search_reference`` before the distance prior."""
     image = _check_image(rgb)
     K = _check_intrinsics(K)
     kinds = tuple(kinds)
