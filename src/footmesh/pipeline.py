@@ -9,6 +9,7 @@ options that cannot be used raise ``InputError``.
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import math
 import os
@@ -29,7 +30,7 @@ from footmesh.cues.refine import clear_paper, height_image, refine_silhouette
 from footmesh.errors import InputError, Refusal
 from footmesh.geometry.camera import Camera, rescale_pixels
 from footmesh.load import Photo, load_photo
-from footmesh.measure import FootLandmarks, measure_foot
+from footmesh.measure import FootLandmarks, Measurements, measure_foot
 from footmesh.model import skeleton as sk
 from footmesh.model.layer import default_model
 from footmesh.report import request_options
@@ -488,6 +489,8 @@ def _measure_located(
 ) -> tuple[MeasureResult, _Files, Located, Any, np.ndarray]:
     """Fit, check and measure one located foot: (result dict, files, the located foot, the fit, the K (3, 3) it
     was fitted with: the photo's, or the reference's where its perspective corrected the focal length)."""
+    from footmesh.cues.reference import seen_with
+    from footmesh.cues.reference.focal import with_focal_scale
     from footmesh.fit import FitConfig, FitInit, canonical_measures, fit_foot, mesh_side_residuals
 
     h, w = rgb.shape[:2]
@@ -513,9 +516,10 @@ def _measure_located(
         if max(residuals.values()) >= config.decoder_side_ratio * residuals[nearer]:
             side, side_source = nearer, "decoder"  # told plainly: the other side's fit is not needed
 
-    def fitted(on: ReferenceObject | None, flat: bool = False):
+    def fitted(on: ReferenceObject | None, flat: bool = False, start: FitInit | None = None):
         """The fit on the floor of the reference ``on`` (with the camera its pose was solved with), or on none;
-        ``flat``: held upright on that floor (``MeasureConfig.flat_refit_upright_robust``)."""
+        ``flat``: held upright on that floor (``MeasureConfig.flat_refit_upright_robust``); ``start``: from there
+        alone instead of the usual starts."""
         fit_config = FitConfig(joint_sigma_px=joint_sigma_px(located.crop.side, config))
         if flat:
             fit_config = replace(fit_config, upright_robust=config.flat_refit_upright_robust)
@@ -525,12 +529,12 @@ def _measure_located(
             depth_mm=None if kind == "rgb" else depth,
             cam_from_floor=None if on is None else on.cam_from_floor,
             side=side,
-            init=init,
+            init=init if start is None else start,
             config=fit_config,
         )
 
     seen_reference = reference  # its floor's orientation stays evidence even if its scale is rejected below
-    fit = fitted(reference)
+    fit, fitted_flat = fitted(reference), False
     length_mm = canonical_measures(fit.shape)[0] if fit.scaled else None
     if reference is None and (refusal := refusals.implausible_length(length_mm, config)) is not None:
         raise refusal
@@ -559,7 +563,7 @@ def _measure_located(
         # refusing, fit again held upright on it (the photo guide asks for the foot flat on the floor)
         flat = fitted(reference, flat=True)
         if refusals.fitted_foot(flat.quality, _end_on(flat), kind, config, floor, scaled=flat.scaled) is None:
-            fit = flat
+            fit, fitted_flat = flat, True
             messages.append(
                 f"the foot was fitted lying flat on the floor that {references.kind(reference.kind).described} shows "
                 "(a first fit lifted it off that floor: the heel may be hidden behind the leg); for the best figures "
@@ -575,21 +579,27 @@ def _measure_located(
 
     t = time.perf_counter()
     model = default_model()
-    canonical = fit.canonical_vertices(model)
-    with torch.no_grad():
-        rest = model(torch.as_tensor(fit.shape, dtype=torch.float32)[None], side=fit.side)
-    rest_joints = rest.joints[0].double().numpy()
-    faces = model.faces(fit.side).numpy()
-    try:
-        measured = measure_foot(canonical, faces, FootLandmarks.from_joints(rest_joints), side=fit.side)
-    except ValueError as exc:  # a shape far outside the population (a failed fit) has no well-defined measurements
-        raise refusals.unmeasurable(str(exc)) from exc
+    canonical, faces, measured = _measured_fit(fit, model)
     scale_source = "depth" if kind != "rgb" else (reference.kind if reference is not None else "none")
     if not fit.scaled:  # the fit could not use the evidence: say so rather than name a source it did not use
         scale_source = "none"
     if fit.scaled:
+        focal_effect = None
+        if reference is not None and reference.focal_log_sd > 0:
+            # the focal length is an estimate: the fit again with it one SD longer tells what that is worth (seen
+            # from above, the foot's relief makes the length move with it: 20-60 mm per unit of log focal length on
+            # the real A4 photos)
+            factor = math.exp(reference.focal_log_sd)
+            longer = seen_with(reference, with_focal_scale(reference.K, factor), reference.focal_log_sd)
+            if longer is not None:
+                # from every start: a warm start stays in the first fit's basin and shows a fraction of the change
+                other = fitted(longer, flat=fitted_flat)
+                with contextlib.suppress(ValueError):  # unmeasurable there: the focal length's share stays unknown
+                    other_measured = _measured_fit(other, model)[2].values_mm() if other.scaled else None
+                    if other_measured is not None:
+                        focal_effect = {n: abs(v - other_measured[n]) for n, v in measured.values_mm().items()}
         measured = measured.with_uncertainties(
-            measurement_uncertainty(fit, measured, scale_source, reference, model, config)
+            measurement_uncertainty(fit, measured, scale_source, reference, model, config, focal_effect)
         )
         sizes = shoe_sizes(measured.stick_length.value_mm, measured.ball_width.value_mm)
     else:
@@ -646,6 +656,22 @@ def _measure_located(
     mask = cv2.resize(located.mask.astype(np.uint8) * 255, photo.rgb.shape[1::-1], interpolation=cv2.INTER_NEAREST)
     files = _Files(fit.vertices_cam, canonical, model.faces(fit.side).numpy(), faces, overlay, mask)
     return result, files, located, fit, K
+
+
+def _measured_fit(fit, model) -> tuple[np.ndarray, np.ndarray, Measurements]:
+    """The fitted foot in its canonical pose (V, 3), its faces (F, 3) and its measurements; a shape far outside
+    the population (a failed fit) has none well-defined: refused as unmeasurable."""
+    canonical = fit.canonical_vertices(model)
+    with torch.no_grad():
+        rest = model(torch.as_tensor(fit.shape, dtype=torch.float32)[None], side=fit.side)
+    faces = model.faces(fit.side).numpy()
+    try:
+        measured = measure_foot(
+            canonical, faces, FootLandmarks.from_joints(rest.joints[0].double().numpy()), side=fit.side
+        )
+    except ValueError as exc:
+        raise refusals.unmeasurable(str(exc)) from exc
+    return canonical, faces, measured
 
 
 def _intrinsics_dict(photo: Photo, reference: ReferenceObject | None, photo_K: np.ndarray) -> dict:

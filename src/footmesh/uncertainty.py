@@ -1,9 +1,11 @@
 """The measurements' uncertainty: the fit's shape covariance pushed through the measurements, calibrated per
-scale source, with the reference object's own size tolerance (docs/measure.md)."""
+scale source, with the reference object's own size tolerance and, where the focal length was estimated, its
+share (docs/measure.md)."""
 
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 
 import numpy as np
 import torch
@@ -13,11 +15,18 @@ from footmesh.measure import MEASUREMENT_NAMES, FootLandmarks, Measurements, mea
 
 
 def measurement_uncertainty(
-    fit, measured: Measurements, scale_source: str, reference, model, config: MeasureConfig
+    fit,
+    measured: Measurements,
+    scale_source: str,
+    reference,
+    model,
+    config: MeasureConfig,
+    focal_effect_mm: Mapping[str, float] | None = None,
 ) -> dict[str, float]:
     """One-SD uncertainty (mm) of each measurement: the fit's shape covariance propagated through the
     measurements (central differences along its principal axes, ``FootFit.shape_sigma_points``), times the
-    calibration factor of the scale source (``MeasureConfig``), and the reference object's scale uncertainty."""
+    calibration factor of the scale source (``MeasureConfig``), the reference object's scale uncertainty and,
+    where the focal length was estimated, how much each measurement moves with one SD of it (``focal_effect_mm``)."""
     points = fit.shape_sigma_points()  # (2, K, K)
     faces = model.faces(fit.side).numpy()
     with torch.no_grad():
@@ -40,6 +49,7 @@ def measurement_uncertainty(
     out_u = {}
     for name, s in zip(MEASUREMENT_NAMES, sd, strict=True):
         value = measured.values_mm()[name]
-        u = math.hypot(factor * float(s), rel * float(value), floor)
+        focal = 0.0 if focal_effect_mm is None else float(focal_effect_mm[name])
+        u = math.hypot(factor * float(s), rel * float(value), floor, focal)
         out_u[name] = round(u, 2)
     return out_u

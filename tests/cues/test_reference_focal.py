@@ -100,9 +100,14 @@ def test_a_prior_on_the_camera_distance_weighs_by_how_well_the_focal_length_is_k
 
 
 def test_a_sheet_seen_straight_down_through_a_tele_lens_takes_its_focal_length_from_the_camera_distance():
-    # a 2x-3x lens held about 0.6 m over the sheet, straight down
+    # a 2x lens (36 deg) held 0.6-0.8 m over the sheet, straight down
     config = view_config(
-        "front_tele", size=640, reference="a4", elevation_deg=(84.0, 88.0), fov_deg=(36.0, 36.0), distance_mm=(600.0, 600.0)
+        "front_tele",
+        size=640,
+        reference="a4",
+        elevation_deg=(84.0, 88.0),
+        fov_deg=(36.0, 36.0),
+        distance_mm=(600.0, 600.0),
     )
     sample = Renderer(config).render(7, 0)
     K_true = np.asarray(sample["K"], dtype=np.float64)

@@ -40,7 +40,7 @@ z = x cross y up out of the floor (towards the camera).
 
 from footmesh.cues.reference.objects import ReferenceObject, ReferenceSearch
 from footmesh.cues.reference.params import KINDS, SIZE_REL_SD, SIZES_MM
-from footmesh.cues.reference.pose import rectangle_pose
+from footmesh.cues.reference.pose import rectangle_pose, seen_with
 from footmesh.cues.reference.search import detect_reference, search_reference
 
 __all__ = [
@@ -52,4 +52,5 @@ __all__ = [
     "detect_reference",
     "rectangle_pose",
     "search_reference",
+    "seen_with",
 ]

@@ -24,7 +24,8 @@ class ReferenceObject:
     length measured through this plane; ``K`` (3, 3): the intrinsics the pose was solved with (the caller's, or,
     where their focal length was a guess, with the focal length the rectangle's perspective gives:
     ``focal.focal_estimate``); ``focal_log_sd``: the SD of that focal length's log (0: the caller's, held; a
-    sheet completed across a hidden corner keeps the caller's focal length and its SD); ``mirrored``: the marker was read in the mirror image.
+    sheet completed across a hidden corner keeps the caller's focal length and its SD); ``mirrored``: the marker
+    was read in the mirror image.
     """
 
     kind: str

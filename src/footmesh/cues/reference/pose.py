@@ -3,10 +3,12 @@
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import cv2
 import numpy as np
 
+from footmesh.cues.reference.objects import ReferenceObject
 from footmesh.cues.reference.params import SIZES_MM
 from footmesh.cues.reference.quads import _parallelogram
 
@@ -33,6 +35,22 @@ def rectangle_pose(corners: np.ndarray, kind: str, K: np.ndarray) -> tuple[np.nd
     proj, _ = cv2.projectPoints(obj, rvec, tvec, K, None)
     reproj = float(np.sqrt(np.mean(np.sum((proj.reshape(4, 2) - corners) ** 2, axis=1))))
     return pose, reproj
+
+
+def seen_with(found: ReferenceObject, K: np.ndarray, focal_log_sd: float) -> ReferenceObject | None:
+    """``found`` as its corners give it through a camera of intrinsics K (3, 3) (another focal length): its pose
+    solved again, ``focal_log_sd`` the new focal length's SD; None when no pose fits."""
+    solved = rectangle_pose(found.corners_px, found.kind, K)
+    if solved is None:
+        return None
+    pose, reprojection = solved
+    return replace(
+        found,
+        K=np.array(K, dtype=np.float64),
+        cam_from_floor=pose,
+        reprojection_px=reprojection,
+        focal_log_sd=focal_log_sd,
+    )
 
 
 def _distance(corners: np.ndarray, kind: str, K: np.ndarray) -> float:

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import functools
 from collections.abc import Callable
-from dataclasses import replace
 
 import cv2
 import numpy as np
@@ -15,7 +14,7 @@ from footmesh.cues.reference.finish import _finish
 from footmesh.cues.reference.marker import _detect_marker, _overlaps
 from footmesh.cues.reference.objects import ReferenceObject, ReferenceSearch
 from footmesh.cues.reference.params import _KERNEL5, BLUR_SIGMA_PX, KINDS, MARKER_SHEET_SCALE, RECTANGLES, SHEETS
-from footmesh.cues.reference.pose import rectangle_pose
+from footmesh.cues.reference.pose import seen_with
 from footmesh.cues.reference.quads import _candidate_groups, _canonical, _check_image, _check_intrinsics, _signed_area
 from footmesh.cues.reference.sides import _blank_inside, _fit_sides, _paper_beside
 
@@ -78,11 +77,8 @@ def _with_distance_prior(found: ReferenceObject, K: np.ndarray, median_mm: float
     total = found.K[0, 0] * factor / K[0, 0]
     total = min(max(total, focal.FOCAL_RANGE[0]), focal.FOCAL_RANGE[1])
     new_K = focal.with_focal_scale(K, total)
-    solved = rectangle_pose(found.corners_px, found.kind, new_K)
-    if solved is None:
-        return found
-    pose, reprojection = solved
-    return replace(found, K=new_K, cam_from_floor=pose, reprojection_px=reprojection, focal_log_sd=new_log_sd)
+    seen = seen_with(found, new_K, new_log_sd)
+    return found if seen is None else seen
 
 
 def _search(
