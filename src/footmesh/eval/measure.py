@@ -231,8 +231,9 @@ def evaluate_mode(
                     input={"rgb_ref": "rgb", "rgb": "rgb", "rgbd_heic": "rgbd"}.get(mode, mode),
                     config=config,
                 )
-            except ValueError as exc:
-                result.records.append(Record(i, view, False, str(exc), view_angle_deg=angle))
+            except ValueError as exc:  # a refusal costs time too (issue 21 times every photo tried)
+                seconds = time.perf_counter() - t0
+                result.records.append(Record(i, view, False, str(exc), seconds=seconds, view_angle_deg=angle))
                 continue
             rec = Record(
                 i,

@@ -16,7 +16,7 @@ from footmesh.cues.reference.objects import ReferenceObject, ReferenceSearch
 from footmesh.cues.reference.params import _KERNEL5, BLUR_SIGMA_PX, KINDS, MARKER_SHEET_SCALE, RECTANGLES, SHEETS
 from footmesh.cues.reference.pose import seen_with
 from footmesh.cues.reference.quads import _candidate_groups, _canonical, _check_image, _check_intrinsics, _signed_area
-from footmesh.cues.reference.sides import _blank_inside, _fit_sides, _paper_beside
+from footmesh.cues.reference.sides import _blank_inside, _fit_sides, _paper_beside, remembered_profiles
 
 
 def detect_reference(
@@ -32,6 +32,7 @@ def detect_reference(
     return search_reference(rgb, K, kinds, exclude_mask, focal_prior_log_sd, distance_prior).found
 
 
+@remembered_profiles()  # the fallback without the mask reads most of the same sides again
 def search_reference(
     rgb: np.ndarray,
     K: np.ndarray,
