@@ -11,7 +11,8 @@ half a size (from 0 deg up to the first band within it): the end-on limit the ev
 pipeline's limits (``MeasureConfig``) apply to the fitted pose's angle, which is close to the true one where the
 fit is right.
 
-Run: ``python benchmarks/bench_end_on.py [--n 90] [--modes rgb_ref,rgbd,depth] [--size 640] [--seed 4242]``.
+Run: ``python benchmarks/bench_end_on.py [--n 90] [--modes rgb_ref,rgbd,depth] [--size 640] [--seed 4242]
+[--views sweep|front]`` (``front``: the views most real photos of a foot on a sheet are taken from).
 Measured (2026-12-04, n 90 each): the table in docs/measure.md; with depth the limit the errors support is 40 deg.
 """
 
@@ -69,10 +70,13 @@ def main() -> None:
     parser.add_argument("--modes", default="rgb_ref,rgbd,depth", help="inputs (eval measure's modes)")
     parser.add_argument("--size", type=int, default=640, help="photo side, px")
     parser.add_argument("--seed", type=int, default=4242, help="seed of the photos")
+    parser.add_argument(
+        "--views", default="sweep", help="view set (eval measure's --views): sweep, or front (as most real photos)"
+    )
     args = parser.parse_args()
     config = MeasureConfig(max_rgb_end_on=1.0, max_rgbd_end_on=1.0, max_depth_end_on=1.0)
     records = {
-        mode: evaluate_mode(mode, args.n, args.size, "sweep", progress=False, seed=args.seed, config=config).records
+        mode: evaluate_mode(mode, args.n, args.size, args.views, progress=False, seed=args.seed, config=config).records
         for mode in args.modes.split(",")
     }
     print(band_table(records))
