@@ -71,10 +71,14 @@ def _with_distance_prior(found: ReferenceObject, K: np.ndarray, median_mm: float
     distance and its pose solved again; as it is when its focal length is held or no pose fits the new one.
 
     Its shape was tested at the focal length of its perspective alone: the prior moves it far only where the
-    perspective barely tells it, which is where the shape barely depends on it."""
+    perspective barely tells it, which is where the shape barely depends on it. It only ever lengthens the focal
+    length: an object farther than the median is what a standing person's main camera (the guess) sees, and
+    shortened, a false "sheet" far off on a real photo came near enough to the foot to be taken."""
     if found.focal_log_sd <= 0:
         return found
     factor, new_log_sd = focal.distance_prior_scale(found.focal_log_sd, found.object_distance_mm, median_mm, log_sd)
+    if factor <= 1.0:
+        return found
     total = found.K[0, 0] * factor / K[0, 0]
     total = min(max(total, focal.FOCAL_RANGE[0]), focal.FOCAL_RANGE[1])
     new_K = focal.with_focal_scale(K, total)
