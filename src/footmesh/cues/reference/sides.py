@@ -170,9 +170,8 @@ def _edges_across(
     # the profile reaches PLATEAU_PX beyond the search window, where the colours on both sides are read
     reach = radius + PLATEAU_PX
     across = np.arange(-reach, reach + 1e-9, step)
-    pts = p + along[:, None, None] * t + across[None, :, None] * n  # (S, O, 2)
-    map_x = np.ascontiguousarray(pts[..., 0], dtype=np.float32)
-    map_y = np.ascontiguousarray(pts[..., 1], dtype=np.float32)
+    # the sample points p + along t + across n (S, O), each coordinate on its own: no (S, O, 2) array to split
+    map_x, map_y = ((p[c] + along[:, None] * t[c] + across[None, :] * n[c]).astype(np.float32) for c in (0, 1))
     # bicubic: a bilinear profile's derivative is constant between pixel centres and pulls the peak onto them
     values = cv2.remap(blurred, map_x, map_y, cv2.INTER_CUBIC, borderMode=cv2.BORDER_REPLICATE)  # (S, O, 3)
     size = np.linalg.norm(values[:, -1] - values[:, 0], axis=1)  # (S,) colour change across the line
