@@ -339,3 +339,27 @@ def test_bad_input_is_refused_clearly():
     with pytest.raises(ValueError, match="kinds"):
         detect_reference(image, K, kinds=("banana",))
     assert detect_reference(image, K) is None  # a blank image is no error, and no object
+
+
+def test_the_searchs_remembered_profiles_change_nothing():
+    """``search_reference`` reads each line's profile once (``remembered_profiles``, for its second pass without the
+    mask): the same objects, field for field, and the same reasons as the search that reads them again."""
+    import dataclasses
+
+    from footmesh.cues.reference.sides import _median
+
+    sample = _scenes("a4", 1)[0]
+    spread = _foot_and_leg(sample).copy()
+    spread[:, : int(np.median(sample["ref_corners2d"][:, 0])) + 2] = True  # hides two sides: found in the second pass
+    cut = sample["rgb"][:, : int(sample["ref_corners2d"][:, 0].max()) - 20].copy()  # nothing found: a reason
+    for rgb, mask in ((sample["rgb"], spread), (cut, None)):
+        remembered = search_reference(rgb, sample["K"], exclude_mask=mask)
+        again = search_reference.__wrapped__(rgb, sample["K"], exclude_mask=mask)  # without the memory
+        assert (remembered.rejected, remembered.rejected_area) == (again.rejected, again.rejected_area)
+        assert (remembered.found is None) == (again.found is None)
+        if remembered.found is not None:
+            for f in dataclasses.fields(remembered.found):
+                assert np.array_equal(getattr(remembered.found, f.name), getattr(again.found, f.name)), f.name
+    values = np.random.default_rng(0).random(101)
+    for n in (1, 2, 7, 100, 101):
+        assert _median(values[:n]) == np.median(values[:n])
