@@ -329,6 +329,10 @@ class MeasureConfig:
     between a phone held crouching over the foot (0.3 m) and one held by a standing person (1-1.2 m); the photo
     guide's views are rendered at 0.3-0.7 m. It decides where the sheet's perspective cannot: a sheet seen nearly
     straight down, as in most real photos."""
+    focal_uncertainty_min_log_sd: float = 0.2
+    """Where the focal length was estimated to an SD (of its log) of at least this (a guess with the reference's
+    perspective; not EXIF's 0.1), the foot is fitted again with it one SD longer and the change enters the
+    measurements' uncertainty: one fit more per photo, spent only where the focal length is poorly known."""
     clear_paper: bool = True
     """With a white sheet found, the pixels of the foot's silhouette on it that are of the paper's colour (its
     shadow) are taken out before the fit (``cues.refine.clear_paper``)."""

@@ -585,7 +585,7 @@ def _measure_located(
         scale_source = "none"
     if fit.scaled:
         focal_effect = None
-        if reference is not None and reference.focal_log_sd > 0:
+        if reference is not None and reference.focal_log_sd >= config.focal_uncertainty_min_log_sd:
             # the focal length is an estimate: the fit again with it one SD longer tells what that is worth (seen
             # from above, the foot's relief makes the length move with it: 20-60 mm per unit of log focal length on
             # the real A4 photos)
