@@ -516,10 +516,9 @@ def _measure_located(
         if max(residuals.values()) >= config.decoder_side_ratio * residuals[nearer]:
             side, side_source = nearer, "decoder"  # told plainly: the other side's fit is not needed
 
-    def fitted(on: ReferenceObject | None, flat: bool = False, start: FitInit | None = None):
+    def fitted(on: ReferenceObject | None, flat: bool = False):
         """The fit on the floor of the reference ``on`` (with the camera its pose was solved with), or on none;
-        ``flat``: held upright on that floor (``MeasureConfig.flat_refit_upright_robust``); ``start``: from there
-        alone instead of the usual starts."""
+        ``flat``: held upright on that floor (``MeasureConfig.flat_refit_upright_robust``)."""
         fit_config = FitConfig(joint_sigma_px=joint_sigma_px(located.crop.side, config))
         if flat:
             fit_config = replace(fit_config, upright_robust=config.flat_refit_upright_robust)
@@ -529,7 +528,7 @@ def _measure_located(
             depth_mm=None if kind == "rgb" else depth,
             cam_from_floor=None if on is None else on.cam_from_floor,
             side=side,
-            init=init if start is None else start,
+            init=init,
             config=fit_config,
         )
 
