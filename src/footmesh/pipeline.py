@@ -9,7 +9,6 @@ options that cannot be used raise ``InputError``.
 
 from __future__ import annotations
 
-import contextlib
 import logging
 import math
 import os
@@ -489,8 +488,6 @@ def _measure_located(
 ) -> tuple[MeasureResult, _Files, Located, Any, np.ndarray]:
     """Fit, check and measure one located foot: (result dict, files, the located foot, the fit, the K (3, 3) it
     was fitted with: the photo's, or the reference's where its perspective corrected the focal length)."""
-    from footmesh.cues.reference import seen_with
-    from footmesh.cues.reference.focal import with_focal_scale
     from footmesh.fit import FitConfig, FitInit, canonical_measures, fit_foot, mesh_side_residuals
 
     h, w = rgb.shape[:2]
@@ -585,18 +582,7 @@ def _measure_located(
     if fit.scaled:
         focal_effect = None
         if reference is not None and reference.focal_log_sd >= config.focal_uncertainty_min_log_sd:
-            # the focal length is an estimate: the fit again with it one SD longer tells what that is worth (seen
-            # from above, the foot's relief makes the length move with it: 20-60 mm per unit of log focal length on
-            # the real A4 photos)
-            factor = math.exp(reference.focal_log_sd)
-            longer = seen_with(reference, with_focal_scale(reference.K, factor), reference.focal_log_sd)
-            if longer is not None:
-                # from every start: a warm start stays in the first fit's basin and shows a fraction of the change
-                other = fitted(longer, flat=fitted_flat)
-                with contextlib.suppress(ValueError):  # unmeasurable there: the focal length's share stays unknown
-                    other_measured = _measured_fit(other, model)[2].values_mm() if other.scaled else None
-                    if other_measured is not None:
-                        focal_effect = {n: abs(v - other_measured[n]) for n, v in measured.values_mm().items()}
+            focal_effect = _focal_effect_mm(reference, measured, lambda on: fitted(on, flat=fitted_flat), model)
         measured = measured.with_uncertainties(
             measurement_uncertainty(fit, measured, scale_source, reference, model, config, focal_effect)
         )
@@ -655,6 +641,28 @@ def _measure_located(
     mask = cv2.resize(located.mask.astype(np.uint8) * 255, photo.rgb.shape[1::-1], interpolation=cv2.INTER_NEAREST)
     files = _Files(fit.vertices_cam, canonical, model.faces(fit.side).numpy(), faces, overlay, mask)
     return result, files, located, fit, K
+
+
+def _focal_effect_mm(reference: ReferenceObject, measured: Measurements, refit, model) -> dict[str, float] | None:
+    """How much each measurement moves when the foot is fitted again (``refit(reference)``) with the reference's
+    estimated focal length one SD longer; None when that fit cannot be measured. Seen from above, the foot's relief
+    makes the length move with the focal length (20-60 mm per unit of its log on the real A4 photos)."""
+    from footmesh.cues.reference import seen_with
+    from footmesh.cues.reference.focal import with_focal_scale
+
+    longer_K = with_focal_scale(reference.K, math.exp(reference.focal_log_sd))
+    longer = seen_with(reference, longer_K, reference.focal_log_sd)
+    if longer is None:
+        return None
+    # from every start: a warm start stays in the first fit's basin and shows a fraction of the change
+    other = refit(longer)
+    if not other.scaled:
+        return None
+    try:
+        other_mm = _measured_fit(other, model)[2].values_mm()
+    except Refusal:  # unmeasurable there: the focal length's share stays unknown
+        return None
+    return {name: abs(value - other_mm[name]) for name, value in measured.values_mm().items()}
 
 
 def _measured_fit(fit, model) -> tuple[np.ndarray, np.ndarray, Measurements]:

@@ -192,10 +192,21 @@ class Scene:
     first_person: bool = False
 
 
+_GUIDED_VIEWS = dict(min_azimuth_deg=60.0, max_azimuth_deg=120.0, elevation_deg=(35.0, 75.0), lifted_fraction=0.0)
+_FRONT_VIEWS = dict(
+    max_azimuth_deg=35.0,
+    elevation_deg=(45.0, 85.0),
+    lifted_fraction=0.0,
+    leg_top_mm=(500.0, 800.0),
+    sheet_under_foot_fraction=1.0,
+)
+_TELE_FOV_DEG = (20.0, 36.0)
+"""A phone's 2x-3x lens, or a zoomed, cropped photo: a focal length 2-3.5x the main camera's."""
+
 VIEW_PRESETS: dict[str, dict] = {
     # photos taken as the photo guide asks (docs/measure.md): from the side (60-120 deg off the toes' direction) and
     # above (35-75 deg), the whole foot flat on the floor
-    "guided": dict(min_azimuth_deg=60.0, max_azimuth_deg=120.0, elevation_deg=(35.0, 75.0), lifted_fraction=0.0),
+    "guided": _GUIDED_VIEWS,
     # how the error grows as a foot is seen end-on (benchmarks/bench_end_on.py): any side including straight behind
     # the heel, from just above the floor to straight down, the foot flat on the floor
     "sweep": dict(max_azimuth_deg=180.0, elevation_deg=(5.0, 89.0), lifted_fraction=0.0),
@@ -215,33 +226,14 @@ VIEW_PRESETS: dict[str, dict] = {
         other_foot_fraction=0.3,
         rgb_noise_sd=6.0 / 255,
     ),
-    # the guided views through a phone's 2x-3x lens (or a zoomed, cropped photo): a focal length 2-3.5x the main
-    # camera's that a photo without intrinsics does not tell (issue 19: the reference's perspective has to)
-    "tele": dict(
-        fov_deg=(20.0, 36.0),
-        min_azimuth_deg=60.0,
-        max_azimuth_deg=120.0,
-        elevation_deg=(35.0, 75.0),
-        lifted_fraction=0.0,
-    ),
+    # the guided views through a tele lens: a focal length that a photo without intrinsics does not tell (issue
+    # 19: the reference's perspective has to)
+    "tele": {**_GUIDED_VIEWS, "fov_deg": _TELE_FOV_DEG},
     # the way most real photos of a foot on a sheet are taken (issue 19, ../shared/real/a4): from in front of the
-    # toes and above, the shin rising out of the picture and hiding the heel
-    "front": dict(
-        max_azimuth_deg=35.0,
-        elevation_deg=(45.0, 85.0),
-        lifted_fraction=0.0,
-        leg_top_mm=(500.0, 800.0),
-        sheet_under_foot_fraction=1.0,
-    ),
-    # the same through a 2x-3x lens or cropped: the sheet, seen square, barely tells the focal length
-    "front_tele": dict(
-        fov_deg=(20.0, 36.0),
-        max_azimuth_deg=35.0,
-        elevation_deg=(45.0, 85.0),
-        lifted_fraction=0.0,
-        leg_top_mm=(500.0, 800.0),
-        sheet_under_foot_fraction=1.0,
-    ),
+    # toes and above, the foot on the sheet, the shin rising out of the picture and hiding the heel
+    "front": _FRONT_VIEWS,
+    # the same through a tele lens: the sheet, seen square, barely tells the focal length
+    "front_tele": {**_FRONT_VIEWS, "fov_deg": _TELE_FOV_DEG},
 }
 """Named sets of random views (``footmesh eval measure --views NAME``), each framing the reference object too."""
 
