@@ -259,6 +259,14 @@ def _add_synth_command(sub: argparse._SubParsersAction) -> None:
         metavar="P",
         help="share of views from above and behind the heels, down the legs (as one photographs one's own feet)",
     )
+    synth.add_argument(
+        "--front",
+        type=float,
+        default=0.0,
+        metavar="P",
+        help="share of the other views from in front of the toes and above, the foot on the sheet, the shin hiding "
+        "the heel (as most real photos of a foot on a sheet are taken)",
+    )
     synth.add_argument("--workers", type=int, default=1, help="rendering processes (default 1)")
     synth.add_argument(
         "--threads",
@@ -281,6 +289,7 @@ def _run_synth(args: argparse.Namespace) -> int:
             reference=args.reference,
             other_foot_fraction=args.other_foot,
             first_person_fraction=args.first_person,
+            front_fraction=args.front,
         )
     except ValueError as exc:
         raise InputError(str(exc)) from None

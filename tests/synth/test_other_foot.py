@@ -1,4 +1,4 @@
-"""The other foot in view and first-person views: drawn after everything else (old datasets keep their values),
+"""The other foot in view, first-person and front views: drawn after everything else (old datasets keep their values),
 labelled foot, never changing the first foot's ground truth."""
 
 from __future__ import annotations
@@ -58,9 +58,29 @@ def test_first_person_views_look_down_from_behind_the_heels():
         assert eye[0] < centre[0] and eye[2] > 300  # on the heel's side of the foot and well above the floor
 
 
+def test_front_views_look_at_the_toes_from_above_with_the_foot_on_the_sheet():
+    config = SynthConfig(size=SIZE, front_fraction=1.0, reference="a4", lifted_fraction=1.0)
+    plain = SynthConfig(size=SIZE, reference="a4", lifted_fraction=1.0)
+    for i in range(6):
+        scene, before = sample_scene(4, i, config, 10), sample_scene(4, i, plain, 10)
+        assert scene.front and abs(scene.azimuth) <= math.radians(35) + 1e-9
+        assert math.radians(45) <= scene.elevation <= math.radians(85) and 500 <= scene.leg_top_mm <= 800
+        assert not scene.lifted and scene.reference.under_foot
+        assert np.array_equal(scene.shape, before.shape) and scene.noise_seed == before.noise_seed
+    # drawn after the first-person views: those keep their view
+    both = sample_scene(4, 0, SynthConfig(first_person_fraction=1.0, front_fraction=1.0), 10)
+    assert both.first_person and not both.front
+    renderer = Renderer(config)
+    sample = renderer.render(4, 0)
+    eye = -sample["cam_from_scene"][:3, :3].T @ sample["cam_from_scene"][:3, 3]
+    assert eye[0] > renderer.geometry(renderer.scene(4, 0))[0].foot_vertices[:, 0].max()  # beyond the toes
+
+
 def test_fractions_outside_0_1_are_refused():
     with pytest.raises(ValueError, match="other_foot_fraction"):
         SynthConfig(other_foot_fraction=1.5)
+    with pytest.raises(ValueError, match="front_fraction"):
+        SynthConfig(front_fraction=-0.1)
 
 
 def test_a_mirrored_training_image_shows_the_other_side():

@@ -29,9 +29,12 @@ Sampling (all uniform unless stated; see ``SynthConfig`` for the ranges):
   turned up to 20 deg), with the same leg covering;
 - first-person views (probability ``first_person_fraction``): the camera above and behind the heels, looking
   down the legs as one photographs one's own feet (azimuth 180 +- 40 deg, elevation 50-88 deg, 450-900 mm), so
-  the shins enter from the image's edge and may hide the heel.
+  the shins enter from the image's edge and may hide the heel;
+- front views (probability ``front_fraction`` of the others): as ``VIEW_PRESETS["front"]``, the camera within
+  35 deg of straight ahead of the toes and 45-85 deg up, the foot standing on the sheet (where one is drawn), the
+  shin 500-800 mm tall, rising out of the picture over the heel.
 
-The last two are drawn after everything else, so datasets made before them keep every other value.
+The last three are drawn after everything else, so datasets made before them keep every other value.
 """
 
 from __future__ import annotations
@@ -84,6 +87,9 @@ class SynthConfig:
     """Share of samples showing the other foot and leg beside the first (both labelled foot; joints of the first)."""
     first_person_fraction: float = 0.0
     """Share of random views taken from above and behind the heels, down the legs (they replace the view drawn)."""
+    front_fraction: float = 0.0
+    """Share of the other random views taken from in front of the toes and above, as most real photos of a foot on
+    a sheet are (``VIEW_PRESETS["front"]``): the foot stands on the sheet, the shin rises out of the picture."""
     rgb_noise_sd: float = 1.5 / 255
     """SD of the Gaussian sensor noise added to RGB (0..1 units)."""
     frame_reference: bool = False
@@ -103,6 +109,7 @@ class SynthConfig:
         for name in (
             "other_foot_fraction",
             "first_person_fraction",
+            "front_fraction",
             "ik_fraction",
             "lifted_fraction",
             "sheet_under_foot_fraction",
@@ -190,6 +197,7 @@ class Scene:
     noise_seed: int
     other_foot: OtherFoot | None = None
     first_person: bool = False
+    front: bool = False
 
 
 _GUIDED_VIEWS = dict(min_azimuth_deg=60.0, max_azimuth_deg=120.0, elevation_deg=(35.0, 75.0), lifted_fraction=0.0)
@@ -311,6 +319,14 @@ def sample_scene(seed: int, index: int, config: SynthConfig, num_components: int
         distance = float(rng.uniform(450, 900))
         jitter = jitter + np.array([rng.uniform(-60, 40), 0.0, 0.0])
         leg_top = float(rng.uniform(600, 900))  # shin and thigh: the legs run out of the picture
+    front = config.views == "random" and not first_person and rng.random() < config.front_fraction
+    if front:
+        azimuth = math.radians(rng.uniform(-_FRONT_VIEWS["max_azimuth_deg"], _FRONT_VIEWS["max_azimuth_deg"]))
+        elevation = math.radians(rng.uniform(*_FRONT_VIEWS["elevation_deg"]))
+        leg_top = float(rng.uniform(*_FRONT_VIEWS["leg_top_mm"]))
+        lifted, tilt, lift = False, (0.0, 0.0), 0.0
+        if reference is not None:  # a sheet under the foot (an object beside it, on the camera's side)
+            reference = _sample_reference(rng, kind, azimuth, _FRONT_VIEWS["sheet_under_foot_fraction"])
     return Scene(
         seed=seed,
         index=index,
@@ -341,6 +357,7 @@ def sample_scene(seed: int, index: int, config: SynthConfig, num_components: int
         noise_seed=noise_seed,
         other_foot=other_foot,
         first_person=first_person,
+        front=front,
     )
 
 
