@@ -24,6 +24,7 @@ import torch
 from footmesh import __version__, references, refusals, report, viz
 from footmesh.config import MeasureConfig
 from footmesh.cues import Cues
+from footmesh.cues.floor import depth_floor
 from footmesh.cues.predict import average_cues, predict_cues
 from footmesh.cues.refine import clear_paper, height_image, refine_silhouette
 from footmesh.errors import InputError, Refusal
@@ -358,6 +359,9 @@ def run_pipeline(photo: Photo, side: str, config: MeasureConfig, input: str = "a
             )
         if reference is not None and config.clear_paper and references.kind(reference.kind).detector == "sheet":
             feet = [_off_the_paper(foot, rgb, reference.corners_px) for foot in feet]
+    floor_seen = None
+    if kind != "rgb" and config.floor_from_depth:
+        floor_seen = depth_floor(depth, K, np.any([foot.mask for foot in feet], axis=0))
     timings["reference_s"] = time.perf_counter() - t
 
     if len(feet) > 1 and side != "auto":
@@ -368,7 +372,19 @@ def run_pipeline(photo: Photo, side: str, config: MeasureConfig, input: str = "a
         try:
             outcomes.append(
                 _measure_located(
-                    photo, located, side, config, kind, rgb, depth, K, to_photo, reference, list(notes), dict(timings)
+                    photo,
+                    located,
+                    side,
+                    config,
+                    kind,
+                    rgb,
+                    depth,
+                    K,
+                    to_photo,
+                    reference,
+                    floor_seen,
+                    list(notes),
+                    dict(timings),
                 )
             )
         except Refusal as exc:
@@ -483,11 +499,14 @@ def _measure_located(
     K: np.ndarray,
     to_photo: float,
     reference,
+    floor_seen: np.ndarray | None,
     messages: list[str],
     timings: dict[str, float],
 ) -> tuple[MeasureResult, _Files, Located, Any, np.ndarray]:
     """Fit, check and measure one located foot: (result dict, files, the located foot, the fit, the K (3, 3) it
-    was fitted with: the photo's, or the reference's where its perspective corrected the focal length)."""
+    was fitted with: the photo's, or the reference's where its perspective corrected the focal length).
+    ``floor_seen``: (4, 4) floor frame -> camera that the depth map shows (``cues.floor.depth_floor``), or None;
+    the fit stands the foot on it where no reference object gives one."""
     from footmesh.fit import FitConfig, FitInit, canonical_measures, fit_foot, mesh_side_residuals
 
     h, w = rgb.shape[:2]
@@ -523,7 +542,7 @@ def _measure_located(
             located.cues,
             K if on is None else on.K,
             depth_mm=None if kind == "rgb" else depth,
-            cam_from_floor=None if on is None else on.cam_from_floor,
+            cam_from_floor=floor_seen if on is None else on.cam_from_floor,
             side=side,
             init=init,
             config=fit_config,

@@ -11,6 +11,7 @@ from scipy.spatial.transform import Rotation
 from footmesh.geometry.alignment import umeyama, weighted_procrustes
 from footmesh.geometry.camera import Camera, pixel_rays, rescale_pixels, resize_intrinsics, unproject
 from footmesh.geometry.mesh import batch_vertex_normals, face_normals, vertex_normals
+from footmesh.geometry.plane import cam_from_plane, robust_plane
 from footmesh.geometry.rotations import rotation_between, skew
 
 K = np.array([[520.0, 0.8, 319.5], [0.0, 515.0, 241.0], [0.0, 0.0, 1.0]])
@@ -76,3 +77,25 @@ def test_umeyama_recovers_a_similarity_with_weights_ignoring_outliers_they_zero(
     np.testing.assert_allclose(sim.inverse_apply(sim.apply(source)), source, atol=1e-9)
     r, s, t = weighted_procrustes(torch.from_numpy(source), torch.from_numpy(target)[None], torch.from_numpy(weights))
     np.testing.assert_allclose(r[0].numpy(), rot, atol=1e-9)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_a_robust_plane_ignores_what_stands_off_it_and_its_frame_faces_the_camera(seed):
+    rng = np.random.default_rng(seed)
+    normal = rng.normal(size=3)
+    normal /= np.linalg.norm(normal)
+    centre = np.array([0.0, 0.0, 800.0]) + rng.normal(0, 50, 3)
+    basis = np.linalg.svd(normal[None], full_matrices=True)[2][1:]  # two directions in the plane
+    floor = centre + rng.uniform(-400, 400, (3000, 2)) @ basis + rng.normal(0, 1.0, (3000, 1)) * normal
+    leg = centre + rng.uniform(-60, 60, (800, 2)) @ basis + rng.uniform(20, 400, (800, 1)) * normal
+    plane = robust_plane(np.concatenate([floor, leg]))
+    assert plane is not None and abs(abs(plane.normal @ normal) - 1) < 1e-4
+    assert (
+        abs(plane.height(centre[None])[0]) < 0.5
+        and plane.inliers[:3000].mean() > 0.97
+        and not plane.inliers[3000:].mean() > 0.1
+    )
+    pose = cam_from_plane(plane)
+    np.testing.assert_allclose(pose[:3, :3] @ pose[:3, :3].T, np.eye(3), atol=1e-12)
+    assert np.linalg.det(pose[:3, :3]) > 0 and np.linalg.inv(pose)[2, 3] > 0  # the camera is above it
+    assert robust_plane(floor[:50]) is None

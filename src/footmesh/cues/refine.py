@@ -23,7 +23,7 @@ import cv2
 import numpy as np
 from scipy import ndimage
 
-from footmesh.geometry.camera import unproject
+from footmesh.cues.floor import fit_depth_floor
 
 
 @dataclass(frozen=True)
@@ -86,24 +86,11 @@ def height_image(
     alone: the floor is the plane fitted (least squares, outliers dropped) to the depth pixels well away from
     ``foot_mask`` (H, W) bool, so the foot's edges against the floor become edges of this image. None when too
     little floor is seen to fit a plane."""
-    h, w = depth_mm.shape
-    z = depth_mm.astype(np.float64)
-    v, u = np.mgrid[0:h, 0:w]
-    points = unproject(np.stack([u, v], axis=-1), z, K)
-    away = cv2.dilate(foot_mask.astype(np.uint8), _disc(max(h, w) // 32)) == 0
-    floor = points[away & (z > 0)]
-    if len(floor) < 500:
+    fitted = fit_depth_floor(depth_mm, K, foot_mask)
+    if fitted is None:
         return None
-    floor = floor[:: max(len(floor) // 20000, 1)]
-    keep = np.ones(len(floor), bool)
-    for _ in range(5):  # the leg and other objects off the plane drop out
-        centre = floor[keep].mean(axis=0)
-        normal = np.linalg.svd(floor[keep] - centre, full_matrices=False)[2][2]
-        distance = (floor - centre) @ normal
-        keep = np.abs(distance) < max(3.0 * 1.4826 * float(np.median(np.abs(distance[keep]))), 2.0)
-        if keep.sum() < 100:
-            return None
-    height = (points - centre) @ normal
+    z = depth_mm
+    height = fitted.plane.height(fitted.points)
     on_foot = foot_mask & (z > 0)
     if on_foot.any() and np.median(height[on_foot]) < 0:
         height = -height
