@@ -486,3 +486,32 @@ def test_a_focal_length_the_photo_barely_tells_widens_the_uncertainty(tmp_path):
     known = measure_photo(paths["image"], tmp_path / "known", intrinsics=paths["intrinsics"])
     held = measure_photo(paths["image"], tmp_path / "held", intrinsics=paths["intrinsics"], config=no_refit)
     assert known["measurements"] == held["measurements"]
+
+
+@pytest.mark.slow
+def test_an_rgbd_foot_whose_heel_the_shin_hides_stands_on_the_floor_the_depth_shows(tmp_path):
+    """Seen from in front of the toes, the shin hides the heel: the forefoot's depth alone let the fit tip the foot
+    about the toes, its sole 10 mm above the floor and 16 mm short; fitted on the depth's floor it stands on it."""
+    import trimesh
+
+    from footmesh.eval.measure import true_measurements
+    from footmesh.synth.render import Renderer
+    from footmesh.synth.scene import view_config
+
+    sample = Renderer(view_config("front", size=640, reference="none")).render(4243, 25)
+    paths = write_inputs(sample, tmp_path / "in", with_depth=True)
+    floor_from_cam = np.linalg.inv(np.asarray(sample["cam_from_scene"], dtype=np.float64))
+    truth = true_measurements(sample["shape"], "right" if int(sample["side"]) else "left")["stick_length"]
+
+    def measured(on: bool) -> tuple[float, float]:
+        out = tmp_path / f"floor_{on}"
+        config = MeasureConfig(floor_from_depth=on)
+        result = measure_photo(paths["image"], out, depth=paths["depth"], intrinsics=paths["intrinsics"], config=config)
+        vertices = trimesh.load(out / "mesh.obj", process=False).vertices  # camera frame, mm
+        lowest = float((vertices @ floor_from_cam[2, :3] + floor_from_cam[2, 3]).min())
+        return lowest, result["measurements"]["stick_length"]["value_mm"] - truth
+
+    lowest, error = measured(True)
+    assert abs(lowest) < 4.0 and abs(error) < 9.0, (lowest, error)
+    lowest_off, error_off = measured(False)
+    assert lowest_off > 6.0 and abs(error_off) > abs(error), (lowest_off, error_off)  # where the floor mattered
