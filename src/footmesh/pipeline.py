@@ -359,7 +359,7 @@ def run_pipeline(photo: Photo, side: str, config: MeasureConfig, input: str = "a
             )
         if reference is not None and config.clear_paper and references.kind(reference.kind).detector == "sheet":
             feet = [_off_the_paper(foot, rgb, reference.corners_px) for foot in feet]
-    floor_seen = None
+    floor_seen = None  # with depth, the floor the depth shows: what a reference's floor is to a plain photo
     if kind != "rgb" and config.floor_from_depth:
         floor_seen = depth_floor(depth, K, np.any([foot.mask for foot in feet], axis=0))
     timings["reference_s"] = time.perf_counter() - t

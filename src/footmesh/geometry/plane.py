@@ -30,10 +30,11 @@ def robust_plane(
     """The plane of most of ``points`` (N, 3): least squares, then ``rounds`` refits on the points within 3 robust
     SDs (median absolute deviation, at least ``min_tolerance``) of the last plane, so that the points of other
     things (a leg, a chair) drop out. None when fewer than ``min_inliers`` points stay."""
+    if rounds < 1:
+        raise ValueError(f"rounds must be at least 1, got {rounds}")
     if len(points) < min_inliers:
         return None
     keep = np.ones(len(points), bool)
-    centre, normal = points.mean(axis=0), np.array([0.0, 0.0, 1.0])
     for _ in range(rounds):
         centre = points[keep].mean(axis=0)
         normal = np.linalg.svd(points[keep] - centre, full_matrices=False)[2][2]
