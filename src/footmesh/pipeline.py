@@ -343,9 +343,9 @@ def run_pipeline(photo: Photo, side: str, config: MeasureConfig, input: str = "a
     t = time.perf_counter()
     reference = None
     notes = list(photo.info.notes)
+    feet_mask = np.any([foot.mask for foot in feet], axis=0)
     if kind == "rgb":
-        feet_mask = np.any([foot.mask for foot in feet], axis=0).astype(np.uint8)
-        exclude = cv2.dilate(feet_mask, np.ones((15, 15), np.uint8)) > 0
+        exclude = cv2.dilate(feet_mask.astype(np.uint8), np.ones((15, 15), np.uint8)) > 0
         focal_prior = config.focal_prior_log_sd[photo.intrinsics.source]
         searched = search_reference(
             rgb, K, exclude_mask=exclude, focal_prior_log_sd=focal_prior, distance_prior=config.camera_distance_prior_mm
@@ -361,7 +361,7 @@ def run_pipeline(photo: Photo, side: str, config: MeasureConfig, input: str = "a
             feet = [_off_the_paper(foot, rgb, reference.corners_px) for foot in feet]
     floor_seen = None  # with depth, the floor the depth shows: what a reference's floor is to a plain photo
     if kind != "rgb" and config.floor_from_depth:
-        floor_seen = depth_floor(depth, K, np.any([foot.mask for foot in feet], axis=0))
+        floor_seen = depth_floor(depth, K, feet_mask)
     timings["reference_s"] = time.perf_counter() - t
 
     if len(feet) > 1 and side != "auto":
