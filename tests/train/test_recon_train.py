@@ -195,7 +195,7 @@ def test_model_based_head_trains_and_its_weights_load(tiny_data, tmp_path, resid
     result = train_recon(tiny_data, tmp_path / "model", config, progress=False)
     assert result.finished and 0 < result.metrics["val_vertex_mm"] < 500
     log = (tmp_path / "model" / "log.csv").read_text()
-    assert all(term in log for term in ("model_mesh", "shape", "angles", "rotation", "side"))
+    assert all(term in log for term in ("model_mesh", "shape", "angles", "rotation", "side", "centre"))
     model, net, _ = load_network(tmp_path / "model" / WEIGHTS)
     assert net == config.model and (model.decoder is not None) == residual
     assert "model-based head" in (tmp_path / "model" / MODEL_CARD).read_text()
@@ -208,6 +208,33 @@ def test_model_based_head_trains_and_its_weights_load(tiny_data, tmp_path, resid
     # the side given decides the mirror: the other side's mesh is a different one
     other = model(x, batch.K, ref, ~given)
     assert (other.model_vertices - out.model_vertices).norm(dim=-1).mean() > 1.0
+
+
+def test_the_residual_decoder_starts_from_an_ism_networks_spiral_layers(tiny_data, tmp_path):
+    """A model-based run without the residual, continued with it: the foot model's head from that run, the residual
+    decoder's spiral layers from an ISM run (``residual_from``), its heads at zero."""
+    frozen = replace(TINY_TRAIN, lr=1e-12, steps=1)  # the copied tensors are still the sources' after one step
+    # another seed: the ISM's spiral layers are not the ones the residual decoder would draw anyway
+    train_recon(tiny_data, tmp_path / "ism", replace(tiny_config(), train=replace(frozen, seed=7)), progress=False)
+    plain = tiny_config(kind="model", loss="structure", residual=False)  # trained: its zero-started heads move
+    train_recon(tiny_data, tmp_path / "plain", plain, progress=False)
+    both = replace(
+        tiny_config(kind="model", loss="structure"),
+        train=replace(frozen, init_from=str(tmp_path / "plain" / WEIGHTS)),
+        residual_from=str(tmp_path / "ism" / WEIGHTS),
+    )
+    train_recon(tiny_data, tmp_path / "both", both, progress=False)
+    ism, _, _ = load_network(tmp_path / "ism" / WEIGHTS)
+    head, _, _ = load_network(tmp_path / "plain" / WEIGHTS)
+    model, _, _ = load_network(tmp_path / "both" / WEIGHTS)
+    close = dict(atol=1e-3, rtol=1e-3)
+    assert torch.allclose(model.decoder.blocks[0].filter_full.weight, ism.decoder.blocks[0].filter_full.weight, **close)
+    assert torch.allclose(model.parametric.linear.weight, head.parametric.linear.weight, **close)
+    assert torch.allclose(model.placement.centre_head.weight, head.placement.centre_head.weight, **close)
+    assert float(head.parametric.linear.weight.detach().abs().max()) > 1e-4
+    assert all(float(h.linear.weight.detach().abs().max()) < 1e-6 for h in model.decoder.heads)
+    with pytest.raises(ValueError, match="residual_from"):
+        replace(tiny_config(), residual_from=str(tmp_path / "ism" / WEIGHTS))
 
 
 def test_edgeconv_baseline_trains_with_chamfer(tiny_data, tmp_path):
@@ -251,6 +278,39 @@ def test_copy_matching_adapts_the_first_convolution():
     assert copied == len(rgbd.state_dict())
     w_src, w_dst = rgbd.state_dict()["encoder.stem.0.0.weight"], rgb.state_dict()["encoder.stem.0.0.weight"]
     assert torch.equal(w_dst[:, :3], w_src[:, :3]) and torch.equal(w_dst[:, 3:], w_src[:, 4:])  # r g b | x y
+
+
+def test_an_ism_network_starts_the_model_based_head_where_it_places_the_foot(hierarchy_cache):
+    """From an ISM network's weights the model-based network reads the same latent and puts the foot model's
+    mesh at the ISM's centroid; the residual starts at zero; and the copied parts, not the new head, count as
+    pretrained (their learning rate scaled)."""
+    from footmesh.train.loop import param_groups
+
+    torch.manual_seed(0)
+    ism = ReconNet(TINY_MODEL, hierarchy_cache)
+    with torch.no_grad():  # a trained network's heads are not the zero start
+        for p in ism.parameters():
+            p.add_(0.05 * torch.randn_like(p))
+    model = ReconNet(replace(TINY_MODEL, kind="model", loss="structure"), hierarchy_cache)
+    copy_matching(model, ism.state_dict(), ism.config)
+    g = torch.Generator().manual_seed(1)
+    rgb, depth = torch.rand(2, 3, SIZE, SIZE, generator=g), 400 + 100 * torch.rand(2, 1, SIZE, SIZE, generator=g)
+    x, ref = recon_input("rgbd", rgb, depth)
+    K = torch.tensor([[60.0, 0, 31.5], [0, 60.0, 31.5], [0, 0, 1]]).expand(2, 3, 3)  # noqa: N806
+    with torch.no_grad():
+        out, ism_out = model(x, K, ref), ism(x, K, ref)
+    assert torch.allclose(out.centre, ism_out.centre, atol=1e-4)
+    assert torch.allclose(out.vertices, out.model_vertices)  # the ISM's coordinate heads were not copied
+    assert all(not head.linear.weight.detach().any() for head in model.decoder.heads)
+    assert torch.equal(model.decoder.blocks[0].filter_full.weight, ism.decoder.blocks[0].filter_full.weight)
+
+    model.initialised_from_network = True
+    groups = param_groups(model, replace(TINY_TRAIN, pretrained_lr_scale=0.2))
+    new = {id(p) for p in groups[0]["params"]}
+    scaled = {id(p) for p in groups[1]["params"]}
+    assert groups[1]["lr_scale"] == 0.2 and {id(p) for p in model.encoder.parameters()} <= scaled
+    assert {id(p) for p in model.parametric.parameters()} <= new
+    assert {id(p) for p in model.decoder.heads.parameters()} <= new
 
 
 def test_config_from_partial_dict_keeps_this_modules_defaults():

@@ -110,6 +110,8 @@ class ReconConfig:
     model's parameters (``recon.parametric``) and, with ``residual``, the spiral decoder's per-vertex residual."""
     residual: bool = True
     """``kind="model"``: add the ISM decoder's per-vertex residual to the foot model's mesh."""
+    parametric_hidden: int = 256
+    """``kind="model"``: width of the model head's hidden ReLU layer (0: the parameters linear in the latent)."""
     residual_scale_mm: float = 10.0
     """``kind="model"``: the residual decoder's coordinates are multiplied by this (its ``shape_scale_mm``)."""
     loss: str = "thesis"
@@ -151,6 +153,8 @@ class ReconConfig:
                 f"the EfficientNet-Lite0 encoder's widths are {list(EFFICIENTNET_WIDTHS)}, got {list(self.widths)} "
                 "(ReconConfig.for_widths)"
             )
+        if self.parametric_hidden < 0:
+            raise ValueError(f"parametric_hidden must be >= 0, got {self.parametric_hidden}")
         if self.residual_scale_mm <= 0:
             raise ValueError(f"residual_scale_mm must be positive, got {self.residual_scale_mm}")
         if len(self.widths) != 4 or len(self.blocks) != 4 or min(self.blocks) < 1 or min(self.widths) < 1:
@@ -347,7 +351,7 @@ class ReconNet(nn.Module):
                 for head in self.decoder.heads:
                     head.linear.weight.zero_()
                     head.linear.bias.zero_()
-        self.parametric = ParametricHead(cfg.latent_features) if cfg.kind == "model" else None
+        self.parametric = ParametricHead(cfg.latent_features, cfg.parametric_hidden) if cfg.kind == "model" else None
         # the centroid's prior and latent correction (the ISM decoder has its own)
         self.placement = CentredOutput(cfg.latent_features, cfg.decoder.output) if cfg.kind == "model" else None
         self.centre_map = None
@@ -362,11 +366,19 @@ class ReconNet(nn.Module):
                 self.surface_map = nn.Conv2d(cfg.widths[CENTRE_STAGE], 1, kernel_size=1, bias=False)
                 nn.init.zeros_(self.surface_map.weight)
         self.generator = EdgeConvGenerator(cfg.edgeconv) if cfg.kind == "edgeconv" else None
+        self.initialised_from_network = False
+        """Set when the weights came from another recon network (``train recon --init-from``): its image parts,
+        not only an ImageNet encoder, are then the pretrained ones."""
 
     @property
     def pretrained_submodules(self) -> tuple[str, ...]:
         """Submodules that start from pretrained weights (``TrainConfig.pretrained_lr_scale`` applies to them)."""
-        return ("encoder",) if self.config.encoder == "efficientnet_lite0" else ()
+        if not self.initialised_from_network:
+            return ("encoder",) if self.config.encoder == "efficientnet_lite0" else ()
+        # the residual decoder's coordinate heads start at zero (copy_matching): new, like the model head
+        names = ("encoder", "latent", "centre_map", "surface_map", "decoder.project", "decoder.skip_projections")
+        names += ("decoder.blocks",) if self.config.kind == "model" else ("decoder",)
+        return tuple(n for n in names if _has_parameters(self, n))
 
     @property
     def faces(self) -> torch.Tensor:
@@ -485,6 +497,13 @@ class ReconNet(nn.Module):
     def extra_repr(self) -> str:
         n = sum(p.numel() for p in self.parameters())
         return f"input={self.config.input}, kind={self.config.kind}, parameters={n}"
+
+
+def _has_parameters(module: nn.Module, name: str) -> bool:
+    try:
+        return any(True for _ in module.get_submodule(name).parameters())
+    except AttributeError:
+        return False
 
 
 def _coordinates(x: torch.Tensor) -> torch.Tensor:

@@ -72,15 +72,20 @@ class ModelOutput(DecoderOutput):
 
 
 class ParametricHead(nn.Module):
-    """Latent (B, C) -> ``FootParameters``; ``mesh`` turns them into centred vertices with the foot model.
+    """Latent (B, C) [-> ReLU layer (B, hidden)] -> ``FootParameters``; ``mesh`` turns them into centred vertices
+    with the foot model.
 
     The foot model is not a submodule (its buffers would be saved with every network); it is the packaged one.
     """
 
-    def __init__(self, in_features: int) -> None:
+    def __init__(self, in_features: int, hidden: int = 0) -> None:
         super().__init__()
         self.num_dofs = sk.NUM_DOFS
-        self.linear = nn.Linear(in_features, NUM_SHAPE + sk.NUM_DOFS + 6 + 1)
+        # hidden > 0: one ReLU layer first (the rotation and the sigmoid angles are far from linear in the image)
+        self.hidden = (
+            nn.Sequential(nn.Linear(in_features, hidden), nn.ReLU(inplace=True)) if hidden > 0 else nn.Identity()
+        )
+        self.linear = nn.Linear(hidden if hidden > 0 else in_features, NUM_SHAPE + sk.NUM_DOFS + 6 + 1)
         lower = torch.tensor(sk.DOF_LOWER)
         upper = torch.tensor(sk.DOF_UPPER)
         self.register_buffer("lower", lower, persistent=False)
@@ -96,7 +101,7 @@ class ParametricHead(nn.Module):
 
     def forward(self, latent: torch.Tensor) -> FootParameters:
         """(B, C) -> ``FootParameters``."""
-        out = self.linear(latent)
+        out = self.linear(self.hidden(latent))
         shape, raw, six, side = out.split([NUM_SHAPE, self.num_dofs, 6, 1], dim=1)
         angles = self.lower.to(out) + self.range.to(out) * torch.sigmoid(raw)
         return FootParameters(shape, angles, rotation_from_6d(six), side[:, 0])

@@ -81,7 +81,7 @@ def param_groups(model: nn.Module, config: TrainConfig) -> list[dict[str, Any]]:
     names = getattr(model, "pretrained_submodules", ())
     if config.pretrained_lr_scale == 1.0 or not names:
         return [{"params": list(model.parameters()), "lr_scale": 1.0}]
-    pretrained = {id(p) for name in names for p in getattr(model, name).parameters()}
+    pretrained = {id(p) for name in names for p in model.get_submodule(name).parameters()}
     rest = [p for p in model.parameters() if id(p) not in pretrained]
     chosen = [p for p in model.parameters() if id(p) in pretrained]
     return [{"params": rest, "lr_scale": 1.0}, {"params": chosen, "lr_scale": config.pretrained_lr_scale}]

@@ -91,6 +91,9 @@ class ParameterLoss:
     """L1 of the rotation matrix's 9 entries."""
     side: float = 1.0
     """Binary cross-entropy of the left/right logit."""
+    centre: float = 1.0
+    """L1 (mm) of the vertex centroid (the translation): without it, while the pose is still far off, the mesh
+    loss pulls the centroid away from where the depth puts it (measured: 9 -> 30 mm in 30 steps from an ISM start)."""
     model_mesh: float = 1.0
     """Weight of the mesh loss on the foot model's mesh (before the residual); the final mesh weighs 1."""
 
@@ -110,10 +113,16 @@ class ReconTrainingConfig:
     parameter_loss: ParameterLoss = field(default_factory=ParameterLoss)
     chamfer_points: int = 1024
     """EdgeConv: target vertices drawn per sample and step for the Chamfer loss (all 4,002 cost 3x the step)."""
+    residual_from: str | None = None
+    """``kind="model"`` with ``residual``: an ISM network's weights whose spiral decoder layers start the residual
+    decoder (its coordinate heads still start at zero), copied after ``train.init_from`` (e.g. a model-based run
+    trained without the residual)."""
 
     def __post_init__(self) -> None:
         if self.chamfer_points < 1:
             raise ValueError(f"chamfer_points must be at least 1, got {self.chamfer_points}")
+        if self.residual_from is not None and not (self.model.kind == "model" and self.model.residual):
+            raise ValueError("residual_from starts a model-based network's residual decoder (kind model, residual)")
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -386,6 +395,7 @@ def _parameter_loss(
         "angles": w.angles * (p.angles - batch.angles).abs().mean(),
         "rotation": w.rotation * (p.rotation - batch.rotation).abs().mean(),
         "side": w.side * F.binary_cross_entropy_with_logits(p.right_logit, batch.right),
+        "centre": w.centre * (output.centre - batch.vertices.mean(1)).abs().sum(-1).mean(),
     }
     for name, value in terms.items():
         logged[name] = float(value.detach())
@@ -457,7 +467,8 @@ def copy_matching(model: ReconNet, state: dict[str, torch.Tensor], source: Recon
     """
     own = model.state_dict()
     copied = 0
-    for name, value in state.items():
+    for source_name, value in state.items():
+        name = _target_name(source_name, source, model.config)
         if name not in own:
             continue
         target = own[name]
@@ -477,6 +488,18 @@ def copy_matching(model: ReconNet, state: dict[str, torch.Tensor], source: Recon
     return copied
 
 
+def _target_name(name: str, source: ReconConfig, target: ReconConfig) -> str | None:
+    """Where a tensor of a ``source`` network goes in a ``target`` one (None: nowhere). From an ISM decoder to
+    the model-based head: its centroid head places the foot model's mesh, its spiral layers start the residual
+    decoder, and its coordinate heads are left out (the residual starts at zero, the first mesh the foot model's)."""
+    if source.kind == "ism" and target.kind == "model":
+        if name.startswith("decoder.heads."):
+            return None
+        if name.startswith("decoder.output."):
+            return "placement." + name.removeprefix("decoder.output.")
+    return name
+
+
 # --- the run ------------------------------------------------------------------------------------------------------
 
 
@@ -489,7 +512,7 @@ def train_recon(
     ``out/weights.pt`` (``footmesh.recon.weights``, half precision) and ``out/MODEL_CARD.md``.
     """
     from footmesh.recon.hierarchy import template_hierarchy
-    from footmesh.recon.weights import save_weights, write_model_card
+    from footmesh.recon.weights import read_weights, save_weights, write_model_card
 
     cfg = config.model
     arrays = load_recon_arrays(data, cfg.image_size, progress=progress)
@@ -509,13 +532,20 @@ def train_recon(
     model = ReconNet(cfg, hierarchy)
     fresh = not (out / CHECKPOINT).is_file()  # a resumed run loads everything from its checkpoint
     if fresh and config.train.init_from:
-        from footmesh.recon.weights import read_weights
-
         state, source, _ = read_weights(config.train.init_from)
         copied = copy_matching(model, state, source)
         log.info("initialised %d tensors from %s", copied, config.train.init_from)
     elif fresh and cfg.encoder == "efficientnet_lite0":
         log.info("encoder: %d ImageNet tensors from the packaged EfficientNet-Lite0", model.encoder.load_pretrained())
+    if fresh and config.residual_from:
+        state, source, _ = read_weights(config.residual_from)
+        if source.kind != "ism":
+            raise ValueError(f"residual_from must hold an ISM network, {config.residual_from} holds {source.kind!r}")
+        # the spiral layers only: the placement stays the init_from network's (and _target_name drops the heads)
+        layers = {k: v for k, v in state.items() if k.startswith("decoder.") and not k.startswith("decoder.output.")}
+        log.info("residual decoder: %d tensors from %s", copy_matching(model, layers, source), config.residual_from)
+    # decided from the configuration, not from ``fresh``: a resumed run must rebuild the same parameter groups
+    model.initialised_from_network = bool(config.train.init_from)
     task = ReconTask(train, val, config, None if cfg.kind == "edgeconv" else model.faces)
     data_info = {"folder": str(Path(data)), "samples": len(arrays), "train": len(train), "val": len(val)}
     meta = Path(data) / "meta.json"
