@@ -42,7 +42,7 @@ def test_6d_gives_a_rotation_and_round_trips(values):
 
 def test_angles_stay_inside_the_joint_limits_and_the_start_is_the_mean_foot():
     head = ParametricHead(8)
-    start = head(torch.zeros(2, 8))
+    start = head(torch.zeros(2, 8), torch.zeros(2))
     assert torch.equal(start.shape, torch.zeros(2, NUM_SHAPE))
     assert torch.allclose(start.rotation, torch.eye(3).expand(2, 3, 3))
     assert torch.equal(start.right_logit, torch.zeros(2))
@@ -51,7 +51,8 @@ def test_angles_stay_inside_the_joint_limits_and_the_start_is_the_mean_foot():
     assert torch.allclose(start.angles[:, inside], torch.zeros(2, int(inside.sum())), atol=1e-6)
     with torch.no_grad():
         head.linear.weight.normal_(0, 100.0)  # wild latents still give angles inside the limits
-    wild = head(torch.randn(64, 8, generator=torch.Generator().manual_seed(0)))
+    g = torch.Generator().manual_seed(0)
+    wild = head(torch.randn(64, 8, generator=g), torch.randn(64, generator=g))
     assert ((wild.angles >= lower) & (wild.angles <= upper)).all()
 
 
@@ -59,7 +60,7 @@ def test_the_mesh_is_the_foot_models_centred_and_mirrored_for_right_feet():
     head = ParametricHead(8)
     with torch.no_grad():
         head.linear.weight.normal_(0, 0.3)
-    params = head(torch.randn(2, 8, generator=torch.Generator().manual_seed(1)))
+    params = head(torch.randn(2, 8, generator=torch.Generator().manual_seed(1)), torch.zeros(2))
     right = torch.tensor([False, True])
     vertices, joints = ParametricHead.mesh(params, right)
     assert torch.allclose(vertices.mean(1), torch.zeros(2, 3), atol=1e-3)

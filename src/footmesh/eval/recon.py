@@ -319,7 +319,7 @@ def latency(model, runs: int = 20) -> dict[str, float]:
         if cfg.kind == "model":
             from footmesh.recon.parametric import ParametricHead
 
-            parameters = model.parametric(latent)
+            parameters = model.parametric(latent, torch.zeros(1))
             ParametricHead.mesh(parameters, parameters.right_logit > 0)
             if model.decoder is not None:
                 model.decoder(latent, skips, torch.zeros(1, 3))

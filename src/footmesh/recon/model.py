@@ -434,15 +434,16 @@ class ReconNet(nn.Module):
         if self.centre_map is not None:
             centre = self._spatial_centre(features[CENTRE_STAGE], latent, depth_channel)
         if self.parametric is not None:
-            return self._model_output(latent, skips, centre, camera, right)
+            log_mm_per_unit = torch.log(scale * FOCAL_REF * cfg.image_size / K[:, 0, 0])
+            return self._model_output(latent, log_mm_per_unit, skips, centre, camera, right)
         out = self.decoder(latent, skips, centre)
         levels = tuple(camera(level) for level in out.levels)
         return DecoderOutput(levels[0], camera(out.centre[:, None])[:, 0], levels)
 
-    def _model_output(self, latent, skips, centre, camera, right: torch.Tensor | None) -> ModelOutput:
+    def _model_output(self, latent, log_mm_per_unit, skips, centre, camera, right: torch.Tensor | None) -> ModelOutput:
         """The foot model's mesh from the predicted parameters, its centroid at ``centre`` (normalised frame; None:
         from the latent), plus the residual decoder's per-vertex offsets."""
-        parameters = self.parametric(latent)
+        parameters = self.parametric(latent, log_mm_per_unit)
         if right is None:
             right = parameters.right_logit > 0
         elif right.shape != parameters.right_logit.shape:

@@ -72,8 +72,8 @@ class ModelOutput(DecoderOutput):
 
 
 class ParametricHead(nn.Module):
-    """Latent (B, C) [-> ReLU layer (B, hidden)] -> ``FootParameters``; ``mesh`` turns them into centred vertices
-    with the foot model.
+    """Latent (B, C) and the frame's scale [-> ReLU layer (B, hidden)] -> ``FootParameters``; ``mesh`` turns them
+    into centred vertices with the foot model.
 
     The foot model is not a submodule (its buffers would be saved with every network); it is the packaged one.
     """
@@ -81,11 +81,10 @@ class ParametricHead(nn.Module):
     def __init__(self, in_features: int, hidden: int = 0) -> None:
         super().__init__()
         self.num_dofs = sk.NUM_DOFS
+        inputs = in_features + 1  # the latent and the log of the frame's mm per unit (``forward``)
         # hidden > 0: one ReLU layer first (the rotation and the sigmoid angles are far from linear in the image)
-        self.hidden = (
-            nn.Sequential(nn.Linear(in_features, hidden), nn.ReLU(inplace=True)) if hidden > 0 else nn.Identity()
-        )
-        self.linear = nn.Linear(hidden if hidden > 0 else in_features, NUM_SHAPE + sk.NUM_DOFS + 6 + 1)
+        self.hidden = nn.Sequential(nn.Linear(inputs, hidden), nn.ReLU(inplace=True)) if hidden > 0 else nn.Identity()
+        self.linear = nn.Linear(hidden if hidden > 0 else inputs, NUM_SHAPE + sk.NUM_DOFS + 6 + 1)
         lower = torch.tensor(sk.DOF_LOWER)
         upper = torch.tensor(sk.DOF_UPPER)
         self.register_buffer("lower", lower, persistent=False)
@@ -99,9 +98,15 @@ class ParametricHead(nn.Module):
             bias[NUM_SHAPE + sk.NUM_DOFS : NUM_SHAPE + sk.NUM_DOFS + 6] = torch.tensor([1.0, 0, 0, 0, 1, 0])
             self.linear.bias.copy_(bias)
 
-    def forward(self, latent: torch.Tensor) -> FootParameters:
-        """(B, C) -> ``FootParameters``."""
-        out = self.linear(self.hidden(latent))
+    def forward(self, latent: torch.Tensor, log_mm_per_unit: torch.Tensor) -> FootParameters:
+        """(B, C) latent and (B,) log of the mm one lateral unit of the normalised frame spans at the foot
+        (``ReconNet``: s f_ref / f_x) -> ``FootParameters``.
+
+        Why the scale: the image reaches the encoder scale-free (depth relative to its median, no focal length),
+        so the latent holds the foot's apparent size only; the foot model's shape is in mm (its first components
+        are mostly size), which needs this factor. The ISM decoder predicts in the normalised frame instead.
+        """
+        out = self.linear(self.hidden(torch.cat([latent, log_mm_per_unit[:, None].to(latent.dtype)], dim=1)))
         shape, raw, six, side = out.split([NUM_SHAPE, self.num_dofs, 6, 1], dim=1)
         angles = self.lower.to(out) + self.range.to(out) * torch.sigmoid(raw)
         return FootParameters(shape, angles, rotation_from_6d(six), side[:, 0])
