@@ -12,6 +12,8 @@ import torch
 
 from footmesh.eval import thesis
 from footmesh.eval.recon import (
+    PARAMETER_GROUPS,
+    _parameter_parts,
     chamfer_mm,
     evaluate,
     evaluate_pipeline,
@@ -178,10 +180,33 @@ def test_the_model_based_network_has_its_own_row_and_column(views_data, weights,
     assert "model ours | model thesis" in text
     data = json.loads(out.read_text())
     assert data["model"]["kind"] == "model" and data["model"]["samples"] == 3
+    assert set(data["model"]["model_mesh_centred_mm"]) == set(PARAMETER_GROUPS)
+    assert "| ... the foot model's mesh (true side), true shape and angles |" in text
     with pytest.raises(ValueError, match="--model-weights"):
         run_eval(views_data, ["rgbd"], weights={"rgbd": str(weights["model"])}, limit=1)
     with pytest.raises(ValueError, match="not a model-based one"):
         run_eval(views_data, ["rgbd"], weights={"rgbd": str(weights["rgbd"])}, model_weights=weights["rgbd"])
+
+
+def test_the_parameter_breakdown_finds_the_parameter_that_was_wrong(views_data):
+    """True parameters give the true mesh in every row; a wrong rotation alone is undone by its own row only."""
+    from footmesh.recon.parametric import NUM_SHAPE, FootParameters
+
+    samples = [
+        SynthDataset(views_data, keys=["vertices", "shape", "angles", "cam_from_foot", "side"])[i] for i in (0, 5)
+    ]
+    true_v = torch.from_numpy(np.stack([s["vertices"] for s in samples]).astype(np.float32))
+
+    def stacked(key):
+        return torch.from_numpy(np.stack([s[key] for s in samples]).astype(np.float32))
+
+    rotation = stacked("cam_from_foot")[:, :3, :3]
+    exact = FootParameters(stacked("shape")[:, :NUM_SHAPE], stacked("angles"), rotation, torch.zeros(2))
+    assert max(max(v) for v in _parameter_parts(exact, samples, true_v).values()) < 0.05
+    turn = torch.tensor([[1.0, 0, 0], [0, 0.94, -0.342], [0, 0.342, 0.94]])  # 20 deg about x
+    parts = _parameter_parts(replace(exact, rotation=turn @ rotation), samples, true_v)
+    assert min(parts["as predicted"]) > 10 and min(parts["true shape and angles"]) > 10
+    assert max(parts["true rotation"]) < 0.05
 
 
 def test_tables_without_views_or_edgeconv(views_data, weights):

@@ -22,7 +22,7 @@ from __future__ import annotations
 import json
 import os
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -34,6 +34,16 @@ from footmesh.recon.joints import joints_from_vertices, midfoot_aligned_error
 
 INPUTS = ("rgb", "rgbd", "depth")
 KEYS = ["index", "rgb", "depth", "vertices", "joints3d", "K", "view_id", "side"]
+MODEL_KEYS = ["shape", "angles", "cam_from_foot"]
+"""The foot model's true parameters, read for a model-based network (``PARAMETER_GROUPS``)."""
+PARAMETER_GROUPS: dict[str, tuple[str, ...]] = {
+    "as predicted": (),
+    "true rotation": ("rotation",),
+    "true shape": ("shape",),
+    "true angles": ("angles",),
+    "true shape and angles": ("shape", "angles"),
+}
+"""The model-based head's parameters replaced by the truth, group by group, in ``ReconScores.model_parts``."""
 
 
 @dataclass
@@ -57,6 +67,10 @@ class ReconScores:
     2D-cues network's side head gives it), beside ``vertex`` with the network's own side."""
     joint_side_given: list[np.ndarray] = field(default_factory=list)
     side_correct: list[bool] = field(default_factory=list)
+    model_parts: dict[str, list[float]] = field(default_factory=dict)
+    """``kind="model"``: the centroid-aligned error of the foot model's mesh (before any residual, true side) as
+    predicted and with one group of its parameters replaced by the truth (``PARAMETER_GROUPS``): where its error
+    comes from."""
     view_id: list[int] = field(default_factory=list)
     seconds: float = 0.0
     latency_ms: dict[str, float] = field(default_factory=dict)
@@ -103,6 +117,8 @@ class ReconScores:
                 "joint_mm_floor_mean": float(floor[:, 1:].mean()),
             }
         )
+        if self.model_parts:
+            out["model_mesh_centred_mm"] = {name: _mean(v) for name, v in self.model_parts.items()}
         if self.vertex_side_given:
             out["vertex_mm_side_given"] = _mean(self.vertex_side_given)
             out["joint_mm_mean_side_given"] = float(np.array(self.joint_side_given)[:, 1:].mean())
@@ -199,7 +215,7 @@ def evaluate(
     model, config, _ = load_network(path)
     if config.input != input_kind:
         raise ValueError(f"{path} is a network for {config.input!r} input, not {input_kind!r}")
-    dataset = SynthDataset(data, keys=KEYS)
+    dataset = SynthDataset(data, keys=KEYS + (MODEL_KEYS if config.kind == "model" else []))
     n = len(dataset) if limit is None else min(limit, len(dataset))
     scores = ReconScores(input_kind, config.kind, config.kind == "model" and config.residual)
     size = config.image_size
@@ -228,11 +244,32 @@ def evaluate(
         if config.kind == "model":
             right = np.array([bool(s["side"]) for s in samples])
             scores.side_correct += (out.right.numpy() == right).tolist()
-            given = predict_batch(model, rgb, depth, K, right).vertices
-            scores.vertex_side_given += vertex_errors(given, true_v)["raw"].tolist()
-            scores.joint_side_given += list(midfoot_aligned_error(joints_from_vertices(given), true_j).numpy())
+            given = predict_batch(model, rgb, depth, K, right)
+            scores.vertex_side_given += vertex_errors(given.vertices, true_v)["raw"].tolist()
+            scores.joint_side_given += list(midfoot_aligned_error(joints_from_vertices(given.vertices), true_j).numpy())
+            for name, errors in _parameter_parts(given.parameters, samples, true_v).items():
+                scores.model_parts.setdefault(name, []).extend(errors)
     scores.latency_ms = latency(model)
     return scores
+
+
+def _parameter_parts(parameters, samples: list[dict], true_v: torch.Tensor) -> dict[str, list[float]]:
+    """Centroid-aligned errors (mm) of the foot model's mesh built from ``parameters`` (the true sides), as
+    predicted and with each of ``PARAMETER_GROUPS`` replaced by the samples' true values."""
+    from footmesh.recon.parametric import NUM_SHAPE, ParametricHead
+
+    truth = {
+        "shape": torch.from_numpy(np.stack([s["shape"][:NUM_SHAPE] for s in samples]).astype(np.float32)),
+        "angles": torch.from_numpy(np.stack([s["angles"] for s in samples]).astype(np.float32)),
+        "rotation": torch.from_numpy(np.stack([s["cam_from_foot"][:3, :3] for s in samples]).astype(np.float32)),
+    }
+    right = torch.tensor([bool(s["side"]) for s in samples])
+    centred = true_v - true_v.mean(1, keepdim=True)
+    out = {}
+    for name, group in PARAMETER_GROUPS.items():
+        mesh, _ = ParametricHead.mesh(replace(parameters, **{k: truth[k] for k in group}), right)
+        out[name] = (mesh - centred).norm(dim=-1).mean(1).tolist()
+    return out
 
 
 def _score_meshes(scores: ReconScores, pred: torch.Tensor, true_v: torch.Tensor, true_j: torch.Tensor) -> None:
@@ -413,6 +450,9 @@ def format_tables(
                 f"| ... the same, built for the true side (its own side right on {100 * s['side_accuracy']:.0f} %) | "
                 f"{s['vertex_mm_side_given']:.2f} | | | | | |"
             )
+        if "model_mesh_centred_mm" in s:  # a model-based network: where its error comes from
+            for name, value in s["model_mesh_centred_mm"].items():
+                lines.append(f"| ... the foot model's mesh (true side), {name} | | | {value:.2f} | | | |")
     for k, scored in (pipeline or {}).items():
         if not scored.samples:
             lines.append(f"| {PIPELINE_ROW}, {k} | none of {scored.refused} photos measured | | | | | |")
