@@ -359,9 +359,10 @@ def test_batch_goes_on_after_a_bad_photo_and_resumes(tmp_path, capsys):
     assert result.stat().st_mtime_ns == second
 
 
-def test_the_mesh_decoder_reconstructs_the_foot_in_the_photos_camera_frame():
-    """The decoder's mesh from the networks' crop lands on the rendered foot in the whole photo's camera frame;
-    a crop without depth gives none (the fit then starts from the PnP candidates alone)."""
+@pytest.mark.parametrize("decoder", ["ism", "model"])
+def test_the_mesh_decoder_reconstructs_the_foot_in_the_photos_camera_frame(decoder):
+    """Either shipped decoder's mesh from the networks' crop lands on the rendered foot in the whole photo's camera
+    frame; a crop without depth gives none (the fit then starts from the PnP candidates alone)."""
     import torch
 
     from footmesh.pipeline import decoder_mesh, locate_foot
@@ -372,10 +373,20 @@ def test_the_mesh_decoder_reconstructs_the_foot_in_the_photos_camera_frame():
     rgb, depth, K = sample["rgb"], sample["depth"].astype(np.float32), sample["K"]
     with torch.inference_mode():
         located = locate_foot(rgb, depth, K, "rgbd", MeasureConfig())
-        mesh = decoder_mesh(located, rgb, depth, K, "rgbd")
-        assert decoder_mesh(located, rgb, np.zeros_like(depth), K, "rgbd") is None
+        mesh = decoder_mesh(located, rgb, depth, K, "rgbd", decoder=decoder)
+        assert decoder_mesh(located, rgb, np.zeros_like(depth), K, "rgbd", decoder=decoder) is None
     error = np.linalg.norm(mesh - sample["vertices"], axis=1).mean()
     assert error < 15.0, f"mean vertex error {error:.1f} mm"
+
+
+def test_the_model_based_decoder_is_chosen_for_rgbd_only_and_unknown_decoders_are_refused():
+    from footmesh.pipeline import decoder_for
+
+    model = MeasureConfig(decoder_kind="model")
+    assert [decoder_for(k, model) for k in ("rgb", "rgbd", "depth")] == ["ism", "model", "ism"]
+    assert decoder_for("rgbd", MeasureConfig()) == "ism"
+    with pytest.raises(ValueError, match="decoder_kind"):
+        MeasureConfig(decoder_kind="edgeconv")
 
 
 @pytest.mark.slow

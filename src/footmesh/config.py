@@ -228,6 +228,10 @@ def load_config(path: str | os.PathLike | None, **overrides: Any) -> CuesTrainin
     return config
 
 
+DECODER_KINDS = ("ism", "model")
+"""The mesh decoders ``MeasureConfig.decoder_kind`` may name (``footmesh.recon``)."""
+
+
 @dataclass(frozen=True)
 class MeasureConfig:
     """Settings of ``footmesh measure`` (``footmesh.pipeline``)."""
@@ -288,6 +292,9 @@ class MeasureConfig:
     random; ratios 2.0-24) and 19 of 20 guided depth photos (the wrong one at 1.4, the 17 at 3 or more right).
     Not RGB: its decoder picked the true side on 14 of 20."""
     decoder_side_ratio: float = 3.0
+    decoder_kind: str = "ism"
+    """Which shipped mesh decoder gives that start and side: ``ism`` (the thesis' spiral decoder) or ``model`` (the
+    model-based head, ``recon.parametric``; RGB-D only: its shipped weights are ``rgbd-model.pt``)."""
     cues_side_confidence: float = 0.95
     """With ``--side auto``, the side is the 2D-cues network's (networks with a left/right head) when its probability
     of a right foot is at least this or at most 1 minus this; only that side is then fitted. Below it, the decoder
@@ -363,3 +370,7 @@ class MeasureConfig:
     1.56 -> 1.39; re-measured with the fine-tuned 2D-cues networks), so that about 68 % of true errors fall within
     one uncertainty; checked on the seed-4242 photos in the README."""
     uncertainty_floor_mm: float = 0.5
+
+    def __post_init__(self) -> None:
+        if self.decoder_kind not in DECODER_KINDS:
+            raise ValueError(f"decoder_kind must be one of {DECODER_KINDS}, got {self.decoder_kind!r}")

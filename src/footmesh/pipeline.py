@@ -189,15 +189,17 @@ def decoder_mesh(
     K: np.ndarray,
     kind: str,
     side: str = "auto",
+    decoder: str = "ism",
 ) -> np.ndarray | None:
-    """The shipped ``kind`` mesh decoder's foot (V, 3) mm, camera frame, from the networks' crop of the photo
-    (K (3, 3) of the photo; the images ``kind`` does not use are ignored); None when the crop holds no depth to
-    read the scale from. A model-based decoder builds the mesh for ``side`` when it is known (not ``auto``)."""
+    """The shipped ``decoder`` (ism or model) for ``kind`` input: its foot (V, 3) mm, camera frame, from the
+    networks' crop of the photo (K (3, 3) of the photo; the images ``kind`` does not use are ignored); None when
+    the crop holds no depth to read the scale from. A model-based decoder builds the mesh for ``side`` when it is
+    known (not ``auto``)."""
     from footmesh.cues.predict import resize_inputs
     from footmesh.recon.model import predict_batch
-    from footmesh.recon.weights import network_for
+    from footmesh.recon.weights import network_for, packaged_weights
 
-    net, cfg = network_for(kind)
+    net, cfg = network_for(kind, packaged_weights(kind, decoder))
     crop = located.crop
     crop_rgb = None if kind == "depth" else crop.cut(rgb)
     crop_depth = None if kind == "rgb" else crop.cut(depth, fill=0.0)
@@ -217,6 +219,12 @@ def decoder_mesh(
     return out.vertices[0].double().numpy()
 
 
+def decoder_for(kind: str, config: MeasureConfig) -> str:
+    """The shipped mesh decoder the pipeline runs for ``kind`` input: ``config.decoder_kind`` where it is shipped
+    (the model-based head: RGB-D only), else the ISM decoder."""
+    return config.decoder_kind if kind == "rgbd" else "ism"
+
+
 def joint_sigma_px(crop_side_px: int, config: MeasureConfig) -> float:
     """The fit's expected 2D joint error in working pixels: the networks' error scales with the crop they saw."""
     return max(config.joint_sigma_224_px * crop_side_px / 224.0, 1.0)
@@ -230,6 +238,7 @@ def warm_up(config: MeasureConfig | None = None) -> None:
     first one."""
     from footmesh.cues.weights import network_for as cues_network
     from footmesh.recon.weights import network_for as decoder_network
+    from footmesh.recon.weights import packaged_weights
 
     config = config or MeasureConfig()
     threads = torch.get_num_threads()
@@ -239,7 +248,7 @@ def warm_up(config: MeasureConfig | None = None) -> None:
         for kind in ("rgb", "rgbd", "depth"):
             cues_network(kind)
         for kind in sorted(set(config.decoder_start_inputs) | set(config.decoder_side_inputs)):
-            decoder_network(kind)
+            decoder_network(kind, packaged_weights(kind, decoder_for(kind, config)))
     finally:
         torch.set_num_threads(threads)
 
@@ -523,7 +532,7 @@ def _measure_located(
     mesh = None
     if start or tell_side:
         with torch.inference_mode():
-            mesh = decoder_mesh(located, rgb, depth, K, kind, side)
+            mesh = decoder_mesh(located, rgb, depth, K, kind, side, decoder_for(kind, config))
     if mesh is not None and start:
         init = FitInit(vertices_cam=mesh, alone=False)
     if mesh is not None and tell_side:
