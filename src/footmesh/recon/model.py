@@ -376,8 +376,9 @@ class ReconNet(nn.Module):
         if not self.initialised_from_network:
             return ("encoder",) if self.config.encoder == "efficientnet_lite0" else ()
         # the residual decoder's coordinate heads start at zero (copy_matching): new, like the model head
-        names = ("encoder", "latent", "centre_map", "surface_map", "decoder.project", "decoder.skip_projections")
-        names += ("decoder.blocks",) if self.config.kind == "model" else ("decoder",)
+        copied_decoder = ("decoder.project", "decoder.skip_projections", "decoder.blocks")
+        names = ("encoder", "latent", "centre_map", "surface_map")
+        names += copied_decoder if self.config.kind == "model" else ("decoder",)
         return tuple(n for n in names if _has_parameters(self, n))
 
     @property
