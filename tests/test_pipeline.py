@@ -169,6 +169,24 @@ def test_bundled_photos_measure_close_to_the_truth(measured):
 
 
 @pytest.mark.slow
+def test_a_photo_measures_the_same_whatever_threads_torch_was_given(tmp_path):
+    import torch
+
+    ex = next(e for e in examples() if e.name == "a4_left")
+    before = torch.get_num_threads()
+    results = []
+    try:
+        for threads in (1, 2):
+            torch.set_num_threads(threads)
+            result = measure_photo(ex.image, tmp_path / str(threads), intrinsics=ex.intrinsics)
+            results.append((result["measurements"], result["joints2d_px"], result["shape"]))
+            assert torch.get_num_threads() == threads  # the stages put back what they found
+    finally:
+        torch.set_num_threads(before)
+    assert results[0] == results[1]
+
+
+@pytest.mark.slow
 def test_a_fit_that_does_not_match_the_photo_is_refused(tmp_path):
     ex = next(e for e in examples() if e.depth is not None)
     strict = MeasureConfig(max_model_outside=-1.0)  # every fit "fails": the refusal path, not a number

@@ -36,6 +36,7 @@ from footmesh.model.layer import default_model
 from footmesh.report import request_options
 from footmesh.result import FootEntry, MeasureResult
 from footmesh.sizes import shoe_sizes
+from footmesh.threads import PIPELINE_THREADS, fixed_threads
 from footmesh.uncertainty import measurement_uncertainty
 
 if TYPE_CHECKING:
@@ -335,6 +336,11 @@ def run_pipeline(photo: Photo, side: str, config: MeasureConfig, input: str = "a
     Each foot found is measured (two when both are in view, ``locate_feet``); the result's own keys are the foot
     asked for with ``side``, else the one measured best, and ``feet`` lists every foot.
     """
+    with fixed_threads(PIPELINE_THREADS):  # the same millimetres on any machine (footmesh.threads)
+        return _run_stages(photo, side, config, input)
+
+
+def _run_stages(photo: Photo, side: str, config: MeasureConfig, input: str) -> tuple[MeasureResult, _Files]:
     from footmesh.cues.reference import search_reference
 
     timings = {}

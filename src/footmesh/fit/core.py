@@ -51,7 +51,6 @@ it. A refit under perturbed cues, warm-started with ``FitInit.from_fit``, is the
 
 from __future__ import annotations
 
-import contextlib
 import functools
 import logging
 import math
@@ -77,6 +76,7 @@ from footmesh.model import lbs
 from footmesh.model import skeleton as sk
 from footmesh.model.ik import natural_pose_moments
 from footmesh.model.layer import FootModel, default_model
+from footmesh.threads import SOLVER_THREADS, fixed_threads
 
 log = logging.getLogger(__name__)
 
@@ -1213,21 +1213,6 @@ def _scale_to_evidence(ev: _Evidence, arrays: _ModelArrays, state: _State, side:
 # ----------------------------------------------------------------------------------------------------------
 
 
-@contextlib.contextmanager
-def _compute_threads(n: int):
-    """Run torch's intra-op work and the BLAS on ``n`` threads, then restore the settings. The solver's arrays are
-    small: more threads only add synchronisation (on a busy machine, 2 threads made a fit 3-10x slower)."""
-    from threadpoolctl import threadpool_limits
-
-    before = torch.get_num_threads()
-    torch.set_num_threads(n)
-    try:
-        with threadpool_limits(limits=n):
-            yield
-    finally:
-        torch.set_num_threads(before)
-
-
 def fit_foot(
     cues: Cues,
     K: np.ndarray,
@@ -1257,7 +1242,7 @@ def fit_foot(
     config = config if config is not None else FitConfig()
     model = model if model is not None else default_model()
     _check_inputs(cues, K, depth_mm, cam_from_floor, side)
-    with _compute_threads(1):
+    with fixed_threads(SOLVER_THREADS):
         fit = _fit(cues, K, depth_mm, cam_from_floor, side, init, config, model)
     return replace(fit, seconds=time.perf_counter() - start)
 
