@@ -13,6 +13,8 @@ BALL_REGION = (0.55, 0.85)
 """Fractions of stick length (from the heel) spanning the ball of the foot, where ball width is taken."""
 FOOT_HEIGHT_FRACTION = 0.25
 """Vertices higher than this fraction of the foot's x-extent belong to the leg and are ignored for length."""
+HEEL_REGION_FRACTION = 0.2
+"""The heel region: vertices within this fraction of the foot's x-extent from its back (``heel_region``)."""
 
 
 def stick_length_mm(vertices: np.ndarray) -> float:
@@ -45,6 +47,13 @@ def ball_width_mm(vertices: np.ndarray) -> float:
 def heel_x(v: np.ndarray) -> float:
     """x of the heel: the smallest x among the foot's (not the leg's) vertices, as in ``stick_length_mm``."""
     return float(v[v[:, 2] <= FOOT_HEIGHT_FRACTION * np.ptp(v[:, 0]), 0].min())
+
+
+def heel_region(vertices: np.ndarray) -> np.ndarray:
+    """(H,) ids of the heel region's vertices: those within ``HEEL_REGION_FRACTION`` of the foot's x-extent from its
+    back, of (V, 3) vertices in the zero pose, foot frame. A standing foot bears weight there and under its ball."""
+    v = check_vertices(vertices)
+    return np.flatnonzero(v[:, 0] < v[:, 0].min() + HEEL_REGION_FRACTION * np.ptp(v[:, 0]))
 
 
 def check_vertices(vertices: np.ndarray) -> np.ndarray:

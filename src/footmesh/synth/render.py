@@ -33,6 +33,8 @@ from scipy import sparse
 from footmesh import references
 from footmesh.geometry.camera import project
 from footmesh.geometry.mesh import vertex_normals
+from footmesh.model import anatomy
+from footmesh.model import skeleton as sk
 from footmesh.model.layer import FootModel
 from footmesh.model.skin import SkinColours, load_skin_colours
 from footmesh.synth import kernels, raster, textures
@@ -63,6 +65,11 @@ JOINT_VISIBILITY_MARGIN_MM = 10.0
 (the joint's distance to the nearest vertex + this margin) in front of it. Inner joints lie under the skin."""
 REFERENCE_VISIBILITY_TOLERANCE_MM = 3.0
 LEG_SEGMENTS = 40
+WEIGHT_BEARING_STEPS = 48
+"""Grid of the toes' flexion and of the hindfoot angle searched for a weight-bearing foot
+(``SynthConfig.weight_bearing``): 0.024 rad apart, a heel level with the ball within about 2 mm."""
+WEIGHT_BEARING_TOLERANCE_MM = 1.0
+"""A weight-bearing foot's toes may reach this far below its ball."""
 LEG_RING_MM = 15.0
 LEG_UPRIGHT = 1.5
 """The leg's axis is the ankle cap's normal plus this much of the vertical, normalised."""
@@ -132,6 +139,10 @@ class Renderer:
         self.cap = np.flatnonzero((mean[:, 2] > CAP_MIN_HEIGHT_MM) & (normals[:, 2] > CAP_NORMAL_Z))
         if len(self.cap) < 8:
             raise ValueError(f"foot model: found only {len(self.cap)} ankle-cap vertices to grow the leg from")
+        self._heel = anatomy.heel_region(mean)
+        x = (mean[:, 0] - mean[:, 0].min()) / np.ptp(mean[:, 0])
+        self._ball = np.flatnonzero((x >= anatomy.BALL_REGION[0]) & (x <= anatomy.BALL_REGION[1]))
+        self._toes = np.flatnonzero(x > anatomy.BALL_REGION[1])
 
     def __repr__(self) -> str:
         return f"Renderer(size={self.config.size}, views={self.config.views}, reference={self.config.reference})"
@@ -148,6 +159,8 @@ class Renderer:
             # only the IK poses need the shaped foot's rest joints (one more pass of the model)
             rest = self.model(shape).rest_joints[0] if scene.pose_method == "ik" else None
             angles = sample_angles(scene.seed, scene.index, scene.pose_method, rest)
+            if self.config.weight_bearing and not scene.lifted:
+                angles = self._bearing_weight(shape, angles)
             out = self.model(shape, torch.from_numpy(angles)[None], side=scene.side)
         verts, joints = out.vertices[0].numpy(), out.joints[0].numpy()
         pitch, roll = scene.tilt
@@ -168,6 +181,34 @@ class Renderer:
             verts, joints, self._faces[scene.side], albedo, leg_v, leg_f, leg_a, scene_from_foot, other_foot, other_leg
         )
         return geo, angles
+
+    def _bearing_weight(self, shape: torch.Tensor, angles: np.ndarray) -> np.ndarray:
+        """(22,) ``angles`` of a standing foot bearing weight (shape (1, K)): the toes' downward flexion scaled back
+        until no toe reaches below the ball, then the hindfoot angle that sets the heel level with the ball; the
+        others as drawn. Each by one batched pass of the model over a grid of ``WEIGHT_BEARING_STEPS``."""
+        flexion = np.array([sk.DOF_NAMES.index(f"toe{k}_{j}_y") for k in range(1, 6) for j in ("proximal", "distal")])
+        factor = np.linspace(1.0, 0.0, WEIGHT_BEARING_STEPS)
+        trial = np.repeat(angles[None], WEIGHT_BEARING_STEPS, axis=0)
+        trial[:, flexion] = np.where(angles[flexion] > 0, factor[:, None] * angles[flexion], angles[flexion])
+        out = trial[self._level(shape, trial, self._toes, self._ball, allow_above=True)].copy()
+        dof = sk.DOF_NAMES.index("midfoot_ankle_y")
+        trial = np.repeat(out[None], WEIGHT_BEARING_STEPS, axis=0)
+        trial[:, dof] = np.linspace(sk.DOF_LOWER[dof], sk.DOF_UPPER[dof], WEIGHT_BEARING_STEPS)
+        k = self._level(shape, trial, self._heel, self._ball)
+        out[dof] = trial[k, dof]
+        return out
+
+    def _level(
+        self, shape: torch.Tensor, trial: np.ndarray, region: np.ndarray, base: np.ndarray, allow_above: bool = False
+    ) -> int:
+        """Index of the first of the (N, 22) ``trial`` angles whose ``region`` lowest point is level with the
+        ``base`` region's (``allow_above``: or above it), else the nearest to level."""
+        verts = self.model(shape.expand(len(trial), -1), torch.from_numpy(trial)).vertices.numpy()
+        gap = verts[:, region, 2].min(axis=1) - verts[:, base, 2].min(axis=1)
+        ok = np.flatnonzero(gap >= -WEIGHT_BEARING_TOLERANCE_MM) if allow_above else np.zeros(0, np.int64)
+        if len(ok):
+            return int(ok[0])
+        return int(np.argmin(np.abs(gap)))
 
     def _other_foot(
         self, scene: Scene, shape: torch.Tensor, rest: torch.Tensor | None, albedo: np.ndarray, leg_skin: np.ndarray

@@ -34,7 +34,9 @@ Sampling (all uniform unless stated; see ``SynthConfig`` for the ranges):
   35 deg of straight ahead of the toes and 45-85 deg up, the foot standing on the sheet (where one is drawn), the
   shin 500-800 mm tall, rising out of the picture over the heel.
 
-The last three are drawn after everything else, so datasets made before them keep every other value.
+The last three are drawn after everything else, so datasets made before them keep every other value. Weight-bearing
+feet (``weight_bearing``, the ``front`` views) draw nothing: a standing foot's toes and hindfoot angle are set so
+that its heel rests on the floor with its ball, not only its lowest vertex.
 """
 
 from __future__ import annotations
@@ -87,6 +89,11 @@ class SynthConfig:
     """Share of samples showing the other foot and leg beside the first (both labelled foot; joints of the first)."""
     first_person_fraction: float = 0.0
     """Share of random views taken from above and behind the heels, down the legs (they replace the view drawn)."""
+    weight_bearing: bool = False
+    """True: a standing foot bears weight, as a person standing for the photo does: its toes' downward flexion
+    scaled back until none reaches below the ball, its hindfoot angle (``midfoot_ankle_y``) set so that the heel
+    rests on the floor with the ball. False: any everyday pose on its lowest vertex (the heel or the ball up to
+    ~45 mm off the floor: a foot at rest; datasets made before this field)."""
     front_fraction: float = 0.0
     """Share of the other random views taken from in front of the toes and above, as most real photos of a foot on
     a sheet are (``VIEW_PRESETS["front"]``): the foot stands on the sheet, the shin rises out of the picture."""
@@ -207,6 +214,7 @@ _FRONT_VIEWS = dict(
     lifted_fraction=0.0,
     leg_top_mm=(500.0, 800.0),
     sheet_under_foot_fraction=1.0,
+    weight_bearing=True,
 )
 _TELE_FOV_DEG = (20.0, 36.0)
 """A phone's 2x-3x lens, or a zoomed, cropped photo: a focal length 2-3.5x the main camera's."""
@@ -238,7 +246,8 @@ VIEW_PRESETS: dict[str, dict] = {
     # 19: the reference's perspective has to)
     "tele": {**_GUIDED_VIEWS, "fov_deg": _TELE_FOV_DEG},
     # the way most real photos of a foot on a sheet are taken (issue 19, ../shared/real/a4): from in front of the
-    # toes and above, the foot on the sheet, the shin rising out of the picture and hiding the heel
+    # toes and above, the person standing on the sheet (the foot bearing weight), the shin rising out of the picture
+    # and hiding the heel
     "front": _FRONT_VIEWS,
     # the same through a tele lens: the sheet, seen square, barely tells the focal length
     "front_tele": {**_FRONT_VIEWS, "fov_deg": _TELE_FOV_DEG},
