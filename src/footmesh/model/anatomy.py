@@ -56,6 +56,14 @@ def heel_region(vertices: np.ndarray) -> np.ndarray:
     return np.flatnonzero(v[:, 0] < v[:, 0].min() + HEEL_REGION_FRACTION * np.ptp(v[:, 0]))
 
 
+def ball_region(vertices: np.ndarray) -> np.ndarray:
+    """(B,) ids of the ball region's vertices: those within ``BALL_REGION`` of the foot's x-extent from its back,
+    of (V, 3) vertices in the zero pose, foot frame."""
+    v = check_vertices(vertices)
+    x = (v[:, 0] - v[:, 0].min()) / np.ptp(v[:, 0])
+    return np.flatnonzero((x >= BALL_REGION[0]) & (x <= BALL_REGION[1]))
+
+
 def check_vertices(vertices: np.ndarray) -> np.ndarray:
     """``vertices`` as a finite (V, 3) float64 array with V >= 4 (ValueError otherwise)."""
     v = np.asarray(vertices, dtype=np.float64)

@@ -139,10 +139,8 @@ class Renderer:
         self.cap = np.flatnonzero((mean[:, 2] > CAP_MIN_HEIGHT_MM) & (normals[:, 2] > CAP_NORMAL_Z))
         if len(self.cap) < 8:
             raise ValueError(f"foot model: found only {len(self.cap)} ankle-cap vertices to grow the leg from")
-        self._heel = anatomy.heel_region(mean)
-        x = (mean[:, 0] - mean[:, 0].min()) / np.ptp(mean[:, 0])
-        self._ball = np.flatnonzero((x >= anatomy.BALL_REGION[0]) & (x <= anatomy.BALL_REGION[1]))
-        self._toes = np.flatnonzero(x > anatomy.BALL_REGION[1])
+        self._heel, self._ball = anatomy.heel_region(mean), anatomy.ball_region(mean)
+        self._toes = np.flatnonzero(mean[:, 0] > mean[self._ball, 0].max())
 
     def __repr__(self) -> str:
         return f"Renderer(size={self.config.size}, views={self.config.views}, reference={self.config.reference})"
