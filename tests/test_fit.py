@@ -159,6 +159,21 @@ def test_a_near_tie_between_the_sides_carries_every_start_to_the_end(scenes):
         assert every.side_losses[side] <= few.side_losses[side] + 1e-9
 
 
+def test_the_starts_fitted_in_parallel_give_the_same_fit(scenes):
+    """``FitConfig.solver_workers`` changes how many starts run at once, not the result: each start is solved on
+    its own, and the ends are ranked in the same order."""
+    sample = scenes[1]
+    cues = synthetic_cues(sample, joint_noise_px=3.0, rng=1)
+    fits = [
+        fit_foot(cues, sample["K"], cam_from_floor=sample["cam_from_scene"], config=FitConfig(solver_workers=w))
+        for w in (1, 2)
+    ]
+    assert fits[0].side == fits[1].side and fits[0].side_losses == fits[1].side_losses
+    assert fits[0].iterations == fits[1].iterations
+    np.testing.assert_array_equal(fits[0].shape, fits[1].shape)
+    np.testing.assert_array_equal(fits[0].vertices_cam, fits[1].vertices_cam)
+
+
 # --- the result's contract ---------------------------------------------------------------------------------------
 
 

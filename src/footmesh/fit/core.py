@@ -194,8 +194,10 @@ class FitConfig:
     """(stage, LM iterations at most): "rigid" = rotation + translation; "pose" adds the angles; "full" the angles
     and the shape. A separate pose stage before the shape was slower and no better on synthetic scenes (the pose
     then bends to make up for the mean shape's size: docs/fit.md)."""
-    parallel_sides: bool = True
-    """With side="auto", fit the two sides in two threads (about 1.3-1.6x faster on two cores)."""
+    solver_workers: int = 2
+    """The starts (of both sides with side="auto") are fitted this many at a time, one thread each: they are
+    independent, and torch and most numpy calls release the GIL (two sides in two threads: about 1.3-1.6x faster
+    on two cores). The result does not depend on it."""
     side_tie_ratio: float = 1.15
     """With side="auto", when the two sides' best final costs lie within this ratio, the starts not carried to the
     end yet are, on both sides: on a near tie the wrong side has often only found the better basin (docs/fit.md)."""
@@ -1252,39 +1254,42 @@ def _fit(cues, K, depth_mm, cam_from_floor, side, init, config, model) -> FootFi
     arrays = _model_arrays(model, config.num_vertices)
     sides = SIDES if side == "auto" else (side,)
 
-    def rigid_starts(s: str) -> tuple[list, list]:
-        """The rigid stage from every start: the given ones (all carried on) and the PnP ones ranked by cost."""
-        torch.set_num_threads(1)  # per thread with OpenMP builds
+    def solved(s: str, state: _State) -> tuple[_SideProblem, _State, _Association, int]:
+        """The rigid stage from one start of side ``s``."""
+        torch.set_num_threads(SOLVER_THREADS)  # per thread with OpenMP builds
+        distance0 = None
+        if ev.scale_source == "none":
+            midfoot = state.rotation @ _rest_joints(arrays, state.shape, s)[0] + state.translation
+            distance0 = float(np.linalg.norm(midfoot))
+        problem = _SideProblem(ev, arrays, s, config, distance0)
+        return problem, *problem.solve(state, config.stages[:1])
 
-        def solved(state: _State) -> tuple[_SideProblem, _State, _Association, int]:
-            distance0 = None
-            if ev.scale_source == "none":
-                midfoot = state.rotation @ _rest_joints(arrays, state.shape, s)[0] + state.translation
-                distance0 = float(np.linalg.norm(midfoot))
-            problem = _SideProblem(ev, arrays, s, config, distance0)
-            return problem, *problem.solve(state, config.stages[:1])
+    def carried_on(s: str, start: tuple) -> tuple[_SideProblem, _State, _Association, int]:
+        """The later stages from a rigid stage's end."""
+        torch.set_num_threads(SOLVER_THREADS)
+        problem, state, _, _ = start
+        return problem, *problem.solve(state, config.stages[1:])
 
-        pnp, given = _initial_states(ev, arrays, s, init)
-        return [solved(x) for x in given], sorted((solved(x) for x in pnp), key=lambda x: x[2].cost)
+    with ThreadPoolExecutor(max_workers=max(config.solver_workers, 1)) as pool:
 
-    def carried_on(starts: list) -> list[tuple[_SideProblem, _State, _Association, int]]:
-        torch.set_num_threads(1)
-        return [(p, *p.solve(state, config.stages[1:])) for p, state, _, _ in starts]
+        def each(fn, jobs: dict[str, list]) -> dict[str, list]:
+            """``fn(side, job)`` of every side's jobs, ``solver_workers`` at a time, in each side's order."""
+            futures = {s: [pool.submit(fn, s, job) for job in side_jobs] for s, side_jobs in jobs.items()}
+            return {s: [f.result() for f in side_futures] for s, side_futures in futures.items()}
 
-    def per_side(fn, args: dict) -> dict:
-        if len(args) > 1 and config.parallel_sides:
-            # the two sides in two threads: torch and most numpy calls release the GIL
-            with ThreadPoolExecutor(max_workers=len(args)) as pool:
-                return dict(zip(args, pool.map(fn, args.values()), strict=True))
-        return {s: fn(a) for s, a in args.items()}
-
-    starts = per_side(rigid_starts, {s: s for s in sides})
-    ends = per_side(carried_on, {s: given + ranked[: config.full_starts] for s, (given, ranked) in starts.items()})
-    costs = {s: min(e[2].cost for e in ends[s]) for s in sides}
-    if len(sides) > 1 and max(costs.values()) < config.side_tie_ratio * min(costs.values()):
-        # a near tie between the sides: the starts left behind may hold a better basin for either
-        more = per_side(carried_on, {s: ranked[config.full_starts :] for s, (_, ranked) in starts.items()})
-        ends = {s: ends[s] + more[s] for s in sides}
+        initial = {s: _initial_states(ev, arrays, s, init) for s in sides}  # (pnp, given) per side
+        rigid = each(solved, {s: given + pnp for s, (pnp, given) in initial.items()})
+        # the given starts are all carried on, the PnP ones ranked by the rigid stage's cost
+        starts = {
+            s: (rigid[s][: len(given)], sorted(rigid[s][len(given) :], key=lambda x: x[2].cost))
+            for s, (_, given) in initial.items()
+        }
+        ends = each(carried_on, {s: given + ranked[: config.full_starts] for s, (given, ranked) in starts.items()})
+        costs = {s: min(e[2].cost for e in ends[s]) for s in sides}
+        if len(sides) > 1 and max(costs.values()) < config.side_tie_ratio * min(costs.values()):
+            # a near tie between the sides: the starts left behind may hold a better basin for either
+            more = each(carried_on, {s: ranked[config.full_starts :] for s, (_, ranked) in starts.items()})
+            ends = {s: ends[s] + more[s] for s in sides}
     fitted = {s: min(ends[s], key=lambda x: x[2].cost) for s in sides}
     iterations = sum(x[3] for s in sides for x in starts[s][0] + starts[s][1] + ends[s])
     best = min(fitted, key=lambda s: fitted[s][2].cost)
