@@ -164,8 +164,9 @@ def test_ood_views_are_unlike_the_training_ones():
 
 def test_weight_bearing_feet_stand_on_heel_and_ball_and_keep_their_toes_out_of_the_floor():
     """``SynthConfig.weight_bearing`` (the ``front`` views): the heel's and the ball's lowest points on the floor
-    (within the 0.024 rad grid of the hindfoot angle: about 2 mm), no toe more than 1 mm below the ball; without
-    it the same seed keeps the everyday pose as drawn, one of the two often well off the floor."""
+    (within the 0.024 rad grid of the hindfoot angle: about 2 mm), no toe through the floor below the ball (1 mm
+    allowed, and the hindfoot's angle moves the ball's back edge by about as much again); without it the same seed
+    keeps the everyday pose as drawn, one of the two often well off the floor."""
     from dataclasses import replace
 
     from footmesh.synth.render import Renderer
@@ -184,6 +185,6 @@ def test_weight_bearing_feet_stand_on_heel_and_ball_and_keep_their_toes_out_of_t
             assert min(heel, ball, toes) == pytest.approx(0.0, abs=1e-3)  # standing: the lowest point on the floor
             gaps[flag].append(max(heel, ball))
             if flag:
-                assert toes >= ball - 1.0 - 1e-3, i
+                assert toes >= ball - 2.5, i
     assert max(gaps[True]) < 2.5, gaps[True]
     assert max(gaps[False]) > 10.0, gaps[False]  # at rest: the heel or the ball lifted

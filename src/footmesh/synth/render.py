@@ -69,7 +69,8 @@ WEIGHT_BEARING_STEPS = 48
 """Grid of the toes' flexion and of the hindfoot angle searched for a weight-bearing foot
 (``SynthConfig.weight_bearing``): 0.024 rad apart, a heel level with the ball within about 2 mm."""
 WEIGHT_BEARING_TOLERANCE_MM = 1.0
-"""A weight-bearing foot's toes may reach this far below its ball."""
+"""A weight-bearing foot's toes may reach this far below its ball (before the hindfoot's angle is set, which moves
+the ball region's back edge by up to about as much again)."""
 LEG_RING_MM = 15.0
 LEG_UPRIGHT = 1.5
 """The leg's axis is the ankle cap's normal plus this much of the vertical, normalised."""
