@@ -17,8 +17,8 @@ PIPELINE_THREADS = 2
 """A photo's measurement (networks, reference search, measurements): two threads on every machine, this project's
 2-core CPU being the reference."""
 SOLVER_THREADS = 1
-"""The fit: its arrays are small, and more threads only add synchronisation (a busy machine made a fit with two
-3-10x slower); with two feet or two sides it runs one per thread."""
+"""The fit, per start: its arrays are small, and more threads only add synchronisation (a busy machine made a fit
+with two 3-10x slower); its starts run ``FitConfig.solver_workers`` at a time instead, one thread each."""
 
 
 @contextlib.contextmanager

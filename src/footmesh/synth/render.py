@@ -183,8 +183,9 @@ class Renderer:
 
     def _bearing_weight(self, shape: torch.Tensor, angles: np.ndarray) -> np.ndarray:
         """(22,) ``angles`` of a standing foot bearing weight (shape (1, K)): the toes' downward flexion scaled back
-        until no toe reaches below the ball, then the hindfoot angle that sets the heel level with the ball; the
-        others as drawn. Each by one batched pass of the model over a grid of ``WEIGHT_BEARING_STEPS``."""
+        until no toe reaches below the ball (``WEIGHT_BEARING_TOLERANCE_MM``), then the hindfoot angle that sets
+        the heel level with the ball; the others as drawn. Each by one batched pass of the model over a grid of
+        ``WEIGHT_BEARING_STEPS``."""
         flexion = np.array([sk.DOF_NAMES.index(f"toe{k}_{j}_y") for k in range(1, 6) for j in ("proximal", "distal")])
         factor = np.linspace(1.0, 0.0, WEIGHT_BEARING_STEPS)
         trial = np.repeat(angles[None], WEIGHT_BEARING_STEPS, axis=0)
