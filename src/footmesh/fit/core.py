@@ -1256,7 +1256,6 @@ def _fit(cues, K, depth_mm, cam_from_floor, side, init, config, model) -> FootFi
 
     def solved(s: str, state: _State) -> tuple[_SideProblem, _State, _Association, int]:
         """The rigid stage from one start of side ``s``."""
-        torch.set_num_threads(SOLVER_THREADS)  # per thread with OpenMP builds
         distance0 = None
         if ev.scale_source == "none":
             midfoot = state.rotation @ _rest_joints(arrays, state.shape, s)[0] + state.translation
@@ -1266,11 +1265,12 @@ def _fit(cues, K, depth_mm, cam_from_floor, side, init, config, model) -> FootFi
 
     def carried_on(s: str, start: tuple) -> tuple[_SideProblem, _State, _Association, int]:
         """The later stages from a rigid stage's end."""
-        torch.set_num_threads(SOLVER_THREADS)
         problem, state, _, _ = start
         return problem, *problem.solve(state, config.stages[1:])
 
-    with ThreadPoolExecutor(max_workers=max(config.solver_workers, 1)) as pool:
+    # each worker's torch runs on SOLVER_THREADS too (the setting is per thread with OpenMP builds)
+    workers = max(config.solver_workers, 1)
+    with ThreadPoolExecutor(workers, initializer=torch.set_num_threads, initargs=(SOLVER_THREADS,)) as pool:
 
         def each(fn, jobs: dict[str, list]) -> dict[str, list]:
             """``fn(side, job)`` of every side's jobs, ``solver_workers`` at a time, in each side's order."""
