@@ -48,6 +48,7 @@ from footmesh.synth.scene import (
     sample_scene,
     sample_skin,
 )
+from footmesh.threads import RENDER_THREADS, torch_threads
 
 FAR_MM = 4000.0
 """Floor points farther than this from the camera (and rays that miss the floor) show the background wall."""
@@ -152,15 +153,18 @@ class Renderer:
         return sample_scene(seed, index, self.config, self.model.num_components)
 
     def geometry(self, scene: Scene) -> tuple[Geometry, np.ndarray]:
-        """Posed foot and leg in the scene frame, and the joint angles drawn."""
+        """Posed foot and leg in the scene frame, and the joint angles drawn (the model on ``RENDER_THREADS``)."""
+        with torch.no_grad(), torch_threads(RENDER_THREADS):
+            return self._geometry(scene)
+
+    def _geometry(self, scene: Scene) -> tuple[Geometry, np.ndarray]:
         shape = torch.from_numpy(scene.shape)[None]
-        with torch.no_grad():
-            # only the IK poses need the shaped foot's rest joints (one more pass of the model)
-            rest = self.model(shape).rest_joints[0] if scene.pose_method == "ik" else None
-            angles = sample_angles(scene.seed, scene.index, scene.pose_method, rest)
-            if self.config.weight_bearing and not scene.lifted:
-                angles = self._bearing_weight(shape, angles)
-            out = self.model(shape, torch.from_numpy(angles)[None], side=scene.side)
+        # only the IK poses need the shaped foot's rest joints (one more pass of the model)
+        rest = self.model(shape).rest_joints[0] if scene.pose_method == "ik" else None
+        angles = sample_angles(scene.seed, scene.index, scene.pose_method, rest)
+        if self.config.weight_bearing and not scene.lifted:
+            angles = self._bearing_weight(shape, angles)
+        out = self.model(shape, torch.from_numpy(angles)[None], side=scene.side)
         verts, joints = out.vertices[0].numpy(), out.joints[0].numpy()
         pitch, roll = scene.tilt
         rot = _rot_y(pitch) @ _rot_x(roll)
@@ -216,8 +220,7 @@ class Renderer:
         """The other foot (same shape and skin, the mirror side, its own pose) standing beside the first; its leg."""
         side = "left" if scene.side == "right" else "right"
         angles = sample_angles(scene.seed, scene.index, scene.pose_method, rest, stream=OTHER_FOOT_STREAM)
-        with torch.no_grad():
-            verts = self.model(shape, torch.from_numpy(angles)[None], side=side).vertices[0].numpy()
+        verts = self.model(shape, torch.from_numpy(angles)[None], side=side).vertices[0].numpy()
         c, s = math.cos(scene.other_foot.yaw), math.sin(scene.other_foot.yaw)
         verts = verts @ np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]).T
         dx, dy = scene.other_foot.offset_mm
