@@ -267,6 +267,11 @@ def _add_synth_command(sub: argparse._SubParsersAction) -> None:
         help="share of the other views from in front of the toes and above, the foot on the sheet, the shin hiding "
         "the heel (as most real photos of a foot on a sheet are taken)",
     )
+    synth.add_argument(
+        "--skin-legs",
+        action="store_true",
+        help="bare legs take the foot's skin colours around the ankle, drifting up the leg (default: one even colour)",
+    )
     synth.add_argument("--workers", type=int, default=1, help="rendering processes (default 1)")
     synth.add_argument(
         "--threads",
@@ -290,6 +295,7 @@ def _run_synth(args: argparse.Namespace) -> int:
             other_foot_fraction=args.other_foot,
             first_person_fraction=args.first_person,
             front_fraction=args.front,
+            skin_legs=args.skin_legs,
         )
     except ValueError as exc:
         raise InputError(str(exc)) from None

@@ -1,5 +1,5 @@
-"""The other foot in view, first-person and front views: drawn after everything else (old datasets keep their values),
-labelled foot, never changing the first foot's ground truth."""
+"""The other foot in view, first-person and front views, skin-coloured legs: drawn after everything else (old datasets
+keep their values), labelled foot, never changing the first foot's ground truth."""
 
 from __future__ import annotations
 
@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 import torch
 
-from footmesh.synth.render import LABEL_FOOT, Renderer
-from footmesh.synth.scene import SynthConfig, sample_scene
+from footmesh.synth.render import LABEL_FOOT, LEG_SEGMENTS, Renderer
+from footmesh.synth.scene import SynthConfig, sample_scene, sample_skin
 
 SIZE = 96
 
@@ -96,3 +96,23 @@ def test_a_mirrored_training_image_shows_the_other_side():
     assert torch.equal(augment_batch(batch, flip_only, torch.Generator().manual_seed(0)).side, torch.ones(b))
     never = replace(flip_only, flip=0.0)
     assert torch.equal(augment_batch(batch, never, torch.Generator().manual_seed(0)).side, torch.zeros(b))
+
+
+def test_skin_legs_continue_the_foots_skin_and_leave_the_rest_of_the_sample_alone():
+    plain = Renderer(SynthConfig(size=SIZE, other_foot_fraction=1.0))
+    skinned = Renderer(replace(plain.config, skin_legs=True))
+    index = next(i for i in range(50) if plain.scene(4, i).leg_style == "bare")
+    scene = plain.scene(4, index)
+    geo_plain, geo_skin = plain.geometry(scene)[0], skinned.geometry(scene)[0]
+    # one even colour before; now it varies around and along the leg, starting from the ankle cap's own colours
+    assert np.ptp(geo_plain.leg_albedo, axis=0).max() == 0.0
+    assert np.ptp(geo_skin.leg_albedo, axis=0).max() > 0.02
+    albedo = sample_skin(scene.seed, scene.index, scene.skin_tone, plain.skin)
+    cap_colours = {tuple(c) for c in np.round(albedo[plain.cap], 6)}
+    assert {tuple(c) for c in np.round(geo_skin.leg_albedo[:LEG_SEGMENTS], 6)} <= cap_colours
+    assert np.ptp(geo_skin.other_leg.albedo, axis=0).max() > 0.02
+    # the same geometry, labels and ground truth: only the leg's colours differ
+    a, b = plain.render(4, index), skinned.render(4, index)
+    for key in ("labels", "joints2d", "depth_clean", "angles"):
+        assert np.array_equal(a[key], b[key]), key
+    assert not np.array_equal(a["rgb"], b["rgb"])

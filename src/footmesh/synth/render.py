@@ -73,6 +73,11 @@ WEIGHT_BEARING_TOLERANCE_MM = 1.0
 """A weight-bearing foot's toes may reach this far below its ball (before the hindfoot's angle is set, which moves
 the ball region's back edge by up to about as much again)."""
 LEG_RING_MM = 15.0
+LEG_SKIN_DRIFT = 0.02
+"""How far a bare leg's skin drifts from one ring to the next (``SynthConfig.skin_legs``): SD of the log brightness
+(and a third of it per colour channel); over a 400 mm shin about +-12 % brightness."""
+LEG_SKIN_STREAM, OTHER_LEG_SKIN_STREAM = 5, 6
+"""Random streams of the legs' skin (``default_rng([seed, index, stream])``; 1-3 are the scene's other draws)."""
 LEG_UPRIGHT = 1.5
 """The leg's axis is the ankle cap's normal plus this much of the vertical, normalised."""
 CAP_MIN_HEIGHT_MM = 100.0
@@ -175,11 +180,10 @@ class Renderer:
         verts = moved + scene_from_foot[:3, 3]
         joints = joints @ rot.T + scene_from_foot[:3, 3]
         albedo = sample_skin(scene.seed, scene.index, scene.skin_tone, self.skin)
-        leg_skin = albedo[self.cap].mean(axis=0)
-        leg_v, leg_f, leg_a = self._leg(scene, verts, leg_skin)
+        leg_v, leg_f, leg_a = self._leg(scene, verts, albedo, LEG_SKIN_STREAM)
         other_foot = other_leg = None
         if scene.other_foot is not None:
-            other_foot, other_leg = self._other_foot(scene, shape, rest, albedo, leg_skin)
+            other_foot, other_leg = self._other_foot(scene, shape, rest, albedo)
         geo = Geometry(
             verts, joints, self._faces[scene.side], albedo, leg_v, leg_f, leg_a, scene_from_foot, other_foot, other_leg
         )
@@ -215,7 +219,7 @@ class Renderer:
         return int(np.argmin(np.abs(gap)))
 
     def _other_foot(
-        self, scene: Scene, shape: torch.Tensor, rest: torch.Tensor | None, albedo: np.ndarray, leg_skin: np.ndarray
+        self, scene: Scene, shape: torch.Tensor, rest: torch.Tensor | None, albedo: np.ndarray
     ) -> tuple[Mesh, Mesh]:
         """The other foot (same shape and skin, the mirror side, its own pose) standing beside the first; its leg."""
         side = "left" if scene.side == "right" else "right"
@@ -225,12 +229,14 @@ class Renderer:
         verts = verts @ np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]).T
         dx, dy = scene.other_foot.offset_mm
         verts = verts + np.array([dx, dy, -verts[:, 2].min()])
-        leg = Mesh(*self._leg(scene, verts, leg_skin))
+        leg = Mesh(*self._leg(scene, verts, albedo, OTHER_LEG_SKIN_STREAM))
         return Mesh(verts, self._faces[side], albedo), leg
 
-    def _leg(self, scene: Scene, verts: np.ndarray, skin: np.ndarray) -> tuple[np.ndarray, ...]:
-        """A truncated elliptic cone from the ankle cap up to ``leg_top_mm`` above the floor (bare, sock, trouser)."""
+    def _leg(self, scene: Scene, verts: np.ndarray, albedo: np.ndarray, stream: int) -> tuple[np.ndarray, ...]:
+        """A truncated elliptic cone from the ankle cap up to ``leg_top_mm`` above the floor (bare, sock, trouser),
+        its skin from the foot's ``albedo`` (V, 3) (``SynthConfig.skin_legs``; ``stream`` draws its variation)."""
         cap = verts[self.cap]
+        skin = albedo[self.cap].mean(axis=0)
         centre = cap.mean(axis=0)
         _, _, vt = np.linalg.svd(cap - centre, full_matrices=False)
         normal = vt[2] if vt[2, 2] > 0 else -vt[2]
@@ -260,14 +266,28 @@ class Renderer:
             pieces.append(([band, length], 1.0, skin, True))
         else:
             pieces.append(([start, length], 1.0, skin, True))
+        around = None
+        if self.config.skin_legs:
+            # the cap vertex nearest each point's angle around the leg, so the shin continues the foot's colours
+            rel = cap - centre
+            cap_angle = np.arctan2((rel @ e2) / b, (rel @ e1) / a)
+            gap = np.abs(np.angle(np.exp(1j * (_RING_ANGLES[:, None] - cap_angle[None]))))
+            around = albedo[self.cap][np.argmin(gap, axis=1)]  # (LEG_SEGMENTS, 3)
+            rng = np.random.default_rng([scene.seed, scene.index, stream])
         vs, fs, cs, offset = [], [], [], 0
         for heights, grow, colour, outward in pieces:
             v, f = _tube(
                 centre, axis, e1, e2, a * grow, b * grow, heights, width, outward, cap_top=heights[1] == length
             )
+            if around is not None and colour is skin:
+                c = _skin_along(around, (len(v) - (heights[1] == length)) // LEG_SEGMENTS, rng)
+                if heights[1] == length:
+                    c = np.concatenate([c, c[-LEG_SEGMENTS:].mean(axis=0, keepdims=True)])
+            else:
+                c = np.broadcast_to(colour, v.shape)
             vs.append(v)
             fs.append(f + offset)
-            cs.append(np.broadcast_to(np.clip(colour, 0, 1), v.shape))
+            cs.append(np.clip(c, 0, 1))
             offset += len(v)
         return np.concatenate(vs), np.concatenate(fs), np.concatenate(cs)
 
@@ -568,6 +588,16 @@ def _tube(
     if (normal @ radial > 0) != outward:
         faces = faces[:, [0, 2, 1]]
     return verts, faces
+
+
+def _skin_along(around: np.ndarray, rings: int, rng: np.random.Generator) -> np.ndarray:
+    """(rings * LEG_SEGMENTS, 3) colours of a bare leg's rings: ``around`` (LEG_SEGMENTS, 3) at the ankle, each ring
+    drifting from the one below by a few per cent in brightness and tone (a random walk, smoothed around the ring)."""
+    patchy = rng.normal(0.0, LEG_SKIN_DRIFT / 2, (rings, LEG_SEGMENTS, 1))
+    patchy = sum(w * np.roll(patchy, k, axis=1) for w, k in ((0.25, -1), (0.5, 0), (0.25, 1)))
+    steps = rng.normal(0.0, LEG_SKIN_DRIFT, (rings, 1, 1)) + rng.normal(0.0, LEG_SKIN_DRIFT / 3, (rings, 1, 3)) + patchy
+    steps[0] = 0.0  # the first ring is the ankle's own colours
+    return (around[None] * np.exp(np.cumsum(steps, axis=0))).reshape(-1, 3)
 
 
 _RING_ANGLES = np.linspace(0, 2 * np.pi, LEG_SEGMENTS, endpoint=False)
