@@ -22,7 +22,7 @@ with two 3-10x slower); its starts run ``FitConfig.solver_workers`` at a time in
 RENDER_THREADS = 1
 """The synthetic renderer's foot-model passes (``synth.render.Renderer.geometry``): one thread, as the dataset's
 workers run, so that an eval photo rendered in any process is the dataset's sample on any machine. The IK poses'
-redundant toe chains tie to within rounding: with two threads 6 of 60 guided eval photos took other toe angles."""
+redundant toe chains tie to within rounding: with two threads 6-9 of 60 guided eval photos took other toe angles."""
 
 
 @contextlib.contextmanager

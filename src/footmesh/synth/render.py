@@ -279,7 +279,7 @@ class Renderer:
             v, f = _tube(
                 centre, axis, e1, e2, a * grow, b * grow, heights, width, outward, cap_top=heights[1] == length
             )
-            if around is not None and colour is skin:
+            if around is not None and colour is skin:  # a piece of bare skin
                 c = _skin_along(around, (len(v) - (heights[1] == length)) // LEG_SEGMENTS, rng)
                 if heights[1] == length:
                     c = np.concatenate([c, c[-LEG_SEGMENTS:].mean(axis=0, keepdims=True)])

@@ -97,8 +97,8 @@ class SynthConfig:
     skin_legs: bool = False
     """True: a bare leg's skin continues the foot's (``render.Renderer._leg``): each point around the leg takes the
     colour of the ankle cap's vertex at that angle, varied slowly along the leg, as a shin continues the foot's skin
-    without an edge. False: one colour, the cap's mean (datasets before this field): a smooth even cone that the
-    2D-cues network learnt to tell from the foot by its evenness, which real shins do not have."""
+    without an edge. False: one colour, the cap's mean (datasets before this field). Fine-tuning the RGB 2D-cues
+    network on such renders did not stop it taking real bare shins for feet (its model card)."""
     front_fraction: float = 0.0
     """Share of the other random views taken from in front of the toes and above, as most real photos of a foot on
     a sheet are (``VIEW_PRESETS["front"]``): the foot stands on the sheet, the shin rises out of the picture."""
