@@ -13,7 +13,7 @@ from footmesh.config import CuesNetConfig
 from footmesh.cues import Cues
 from footmesh.cues.inputs import network_input
 from footmesh.cues.net import CuesNet
-from footmesh.cues.predict import joints_to_image, predict_cues, resize_inputs
+from footmesh.cues.predict import MIRROR_AVERAGED_INPUTS, joints_to_image, predict_cues, resize_inputs
 from footmesh.cues.weights import save_weights
 from footmesh.train.data import resize_joints
 
@@ -180,3 +180,20 @@ def test_shipped_networks_find_silhouettes_and_joints_of_fresh_scenes(kind, requ
     mean_error, mean_iou = float(np.mean(errors)), float(np.mean(ious))
     assert mean_error <= MAX_JOINT_PX[kind], f"{kind}: mean joint error {mean_error:.2f} px"
     assert mean_iou >= MIN_SILHOUETTE_IOU[kind], f"{kind}: silhouette IoU {mean_iou:.3f}"
+
+
+@pytest.mark.slow
+def test_the_rgb_network_answers_a_mirrored_photo_with_the_mirror_of_its_answer(request):
+    # the image and its mirror average to one answer: the symmetry the flip augmentation taught, held exactly
+    assert "rgb" in MIRROR_AVERAGED_INPUTS
+    path = _shipped("rgb")
+    scene = request.getfixturevalue("fresh_scenes")[1]["rgb"][:, 20:]  # not square: x -> W - 1 - x is tested
+    width = scene.shape[1]
+    cues = predict_cues("rgb", scene, weights=path)
+    mirrored = predict_cues("rgb", np.ascontiguousarray(scene[:, ::-1]), weights=path)
+    np.testing.assert_allclose(mirrored.silhouette, cues.silhouette[:, ::-1], atol=1e-5)
+    flipped = cues.joints2d_px.copy()
+    flipped[:, 0] = width - 1 - flipped[:, 0]
+    np.testing.assert_allclose(mirrored.joints2d_px, flipped, atol=1e-3)
+    np.testing.assert_allclose(mirrored.joint_confidence, cues.joint_confidence, atol=1e-5)
+    assert mirrored.right_probability == pytest.approx(1.0 - cues.right_probability, abs=1e-6)

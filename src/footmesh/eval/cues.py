@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from footmesh.cues.predict import predict_batch, resize_inputs
+from footmesh.cues.predict import MIRROR_AVERAGED_INPUTS, predict_batch, resize_inputs
 from footmesh.cues.weights import load_network, packaged_weights
 from footmesh.eval import thesis
 from footmesh.model.skeleton import JOINT_NAMES
@@ -85,6 +85,7 @@ def evaluate(
             np.stack(rgbs) if input_kind != "depth" else None,
             np.stack(depths) if input_kind != "rgb" else None,
             out_size=(size, size),
+            mirror_average=input_kind in MIRROR_AVERAGED_INPUTS,
         )
         scores.seconds += time.perf_counter() - t0
         if right is not None:
