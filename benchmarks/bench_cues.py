@@ -4,7 +4,7 @@ Inference: batch 1, median of ``--runs`` calls after warm-up, at 2 and 1 torch t
 of each input kind (the shipped weights when present, otherwise an untrained network of the same configuration:
 the time does not depend on the weights' values) and for the thesis' network; "network" times the forward pass
 of an input already at the network's side, "predict_cues" the whole call on a 224 x 224 photo (resize, forward,
-silhouette and joints mapped back). "Both passes" times the cues of one whole photo as the pipeline gets them
+silhouette and joints mapped back; with the mirror image in the same batch for ``MIRROR_AVERAGED_INPUTS``). "Both passes" times the cues of one whole photo as the pipeline gets them
 (``pipeline.whole_photo_cues`` on a 1600 x 1200 photo padded to a square, then ``predict_cues`` on a 700 px crop)
 beside issue 18's 150 ms goal, with the shipped networks. Training: images per second of the default network at
 batch 32, counting batch assembly, augmentation, forward, backward and the optimiser step
@@ -74,7 +74,7 @@ def _photo(seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
 def inference_rows(threads: list[int], runs: int, warmup: int, thesis: bool) -> list[tuple]:
     """(network, weights, threads, network ms, predict_cues ms) per input kind and thread count."""
     from footmesh.cues.inputs import network_input
-    from footmesh.cues.predict import predict_batch, resize_inputs
+    from footmesh.cues.predict import MIRROR_AVERAGED_INPUTS, predict_batch, resize_inputs
 
     rows = []
     rgb, depth = _photo()
@@ -96,7 +96,8 @@ def inference_rows(threads: list[int], runs: int, warmup: int, thesis: bool) -> 
             # predict_cues' body without its per-process cache of shipped files, so any network can be timed
             r, d = resize_inputs(rgb if kind != "depth" else None, depth if kind != "rgb" else None, config.image_size)
             predict_batch(model, config, None if r is None else r[None], None if d is None else d[None],
-                          out_size=(PHOTO_SIDE, PHOTO_SIDE))  # fmt: skip
+                          out_size=(PHOTO_SIDE, PHOTO_SIDE),
+                          mirror_average=kind in MIRROR_AVERAGED_INPUTS)  # fmt: skip
 
         for n in threads:
             torch.set_num_threads(n)
