@@ -4,8 +4,9 @@ Inference: batch 1, median of ``--runs`` calls after warm-up, at 2 and 1 torch t
 of each input kind (the shipped weights when present, otherwise an untrained network of the same configuration:
 the time does not depend on the weights' values) and for the thesis' network; "network" times the forward pass
 of an input already at the network's side, "predict_cues" the whole call on a 224 x 224 photo (resize, forward,
-silhouette and joints mapped back; with the mirror image in the same batch for ``MIRROR_AVERAGED_INPUTS``). "Both passes" times the cues of one whole photo as the pipeline gets them
-(``pipeline.whole_photo_cues`` on a 1600 x 1200 photo padded to a square, then ``predict_cues`` on a 700 px crop)
+silhouette and joints mapped back; with the mirror image in the same batch for ``MIRROR_AVERAGED_INPUTS``).
+"Both passes" times the cues of one whole photo as the pipeline gets them (``pipeline.whole_photo_cues`` on a
+1600 x 1200 photo padded to a square, then ``predict_cues`` on a 700 px crop)
 beside issue 18's 150 ms goal, with the shipped networks. Training: images per second of the default network at
 batch 32, counting batch assembly, augmentation, forward, backward and the optimiser step
 (``footmesh.train.cues.CuesTask``).
