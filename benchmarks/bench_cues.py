@@ -200,7 +200,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--quick", action="store_true", help="a few runs, 1 thread, small batch: a check")
     parser.add_argument("--runs", type=int, default=50, help="timed calls per inference figure (default 50)")
-    parser.add_argument("--train-steps", type=int, default=5, help="timed training steps (default 5; 0: inference only)")
+    parser.add_argument("--train-steps", type=int, default=5, help="timed training steps (default 5; 0: none)")
     parser.add_argument("--batch", type=int, default=32, help="training batch size (default 32)")
     parser.add_argument("--data", help="synthetic dataset folder for the training batches (default: random arrays)")
     args = parser.parse_args(argv)
