@@ -36,7 +36,7 @@ from footmesh.model.layer import default_model
 from footmesh.report import request_options
 from footmesh.result import FootEntry, MeasureResult
 from footmesh.sizes import shoe_sizes
-from footmesh.threads import PIPELINE_THREADS, fixed_threads
+from footmesh.threads import PIPELINE_THREADS, fixed_threads, torch_threads
 from footmesh.uncertainty import measurement_uncertainty
 
 if TYPE_CHECKING:
@@ -242,16 +242,12 @@ def warm_up(config: MeasureConfig | None = None) -> None:
     from footmesh.recon.weights import packaged_weights
 
     config = config or MeasureConfig()
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    try:
+    with torch_threads(1):  # torch alone: the BLAS's own threads are not touched before the forks
         default_model()
         for kind in ("rgb", "rgbd", "depth"):
             cues_network(kind)
         for kind in sorted(set(config.decoder_start_inputs) | set(config.decoder_side_inputs)):
             decoder_network(kind, packaged_weights(kind, decoder_for(kind, config)))
-    finally:
-        torch.set_num_threads(threads)
 
 
 def working_photo(photo: Photo, max_side: int) -> tuple[np.ndarray, np.ndarray | None, Camera, float]:

@@ -52,16 +52,20 @@ def heel_x(v: np.ndarray) -> float:
 def heel_region(vertices: np.ndarray) -> np.ndarray:
     """(H,) ids of the heel region's vertices: those within ``HEEL_REGION_FRACTION`` of the foot's x-extent from its
     back, of (V, 3) vertices in the zero pose, foot frame. A standing foot bears weight there and under its ball."""
-    v = check_vertices(vertices)
-    return np.flatnonzero(v[:, 0] < v[:, 0].min() + HEEL_REGION_FRACTION * np.ptp(v[:, 0]))
+    return np.flatnonzero(_x_fraction(vertices) < HEEL_REGION_FRACTION)
 
 
 def ball_region(vertices: np.ndarray) -> np.ndarray:
     """(B,) ids of the ball region's vertices: those within ``BALL_REGION`` of the foot's x-extent from its back,
     of (V, 3) vertices in the zero pose, foot frame."""
-    v = check_vertices(vertices)
-    x = (v[:, 0] - v[:, 0].min()) / np.ptp(v[:, 0])
+    x = _x_fraction(vertices)
     return np.flatnonzero((x >= BALL_REGION[0]) & (x <= BALL_REGION[1]))
+
+
+def _x_fraction(vertices: np.ndarray) -> np.ndarray:
+    """(V,) each vertex's x as a fraction of the foot's x-extent from its back (0) to its front (1)."""
+    v = check_vertices(vertices)
+    return (v[:, 0] - v[:, 0].min()) / np.ptp(v[:, 0])
 
 
 def check_vertices(vertices: np.ndarray) -> np.ndarray:

@@ -256,16 +256,16 @@ class Renderer:
             return 1.0 + 0.35 * (h - start) / (length - start)  # the calf widens upwards
 
         leg_colour = np.asarray(scene.leg_colour)
-        pieces = []
+        pieces = []  # (heights, growth, colour (None: bare skin), outward)
         if scene.leg_style == "trouser":
-            pieces.append(([start, band + 5], 1.0, skin, True))
+            pieces.append(([start, band + 5], 1.0, None, True))
             pieces.append(([band, length], 1.3, leg_colour, True))
             pieces.append(([band, length], 1.28, leg_colour * 0.6, False))  # inside of the hem
         elif scene.leg_style == "sock":
             pieces.append(([start, band], 1.03, leg_colour, False))
-            pieces.append(([band, length], 1.0, skin, True))
+            pieces.append(([band, length], 1.0, None, True))
         else:
-            pieces.append(([start, length], 1.0, skin, True))
+            pieces.append(([start, length], 1.0, None, True))
         around = None
         if self.config.skin_legs:
             # the cap vertex nearest each point's angle around the leg, so the shin continues the foot's colours
@@ -276,15 +276,14 @@ class Renderer:
             rng = np.random.default_rng([scene.seed, scene.index, stream])
         vs, fs, cs, offset = [], [], [], 0
         for heights, grow, colour, outward in pieces:
-            v, f = _tube(
-                centre, axis, e1, e2, a * grow, b * grow, heights, width, outward, cap_top=heights[1] == length
-            )
-            if around is not None and colour is skin:  # a piece of bare skin
-                c = _skin_along(around, (len(v) - (heights[1] == length)) // LEG_SEGMENTS, rng)
-                if heights[1] == length:
+            top = heights[1] == length
+            v, f = _tube(centre, axis, e1, e2, a * grow, b * grow, heights, width, outward, cap_top=top)
+            if colour is None and around is not None:
+                c = _skin_along(around, (len(v) - top) // LEG_SEGMENTS, rng)
+                if top:  # the closed top's centre
                     c = np.concatenate([c, c[-LEG_SEGMENTS:].mean(axis=0, keepdims=True)])
             else:
-                c = np.broadcast_to(colour, v.shape)
+                c = np.broadcast_to(skin if colour is None else colour, v.shape)
             vs.append(v)
             fs.append(f + offset)
             cs.append(np.clip(c, 0, 1))
