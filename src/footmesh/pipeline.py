@@ -168,7 +168,8 @@ def _located_in(rgb, depth, K, kind: str, config: MeasureConfig, box: np.ndarray
     crop_depth = None if depth is None else crop.cut(depth, fill=0.0)
     second = predict_cues(kind, crop_rgb, crop_depth)
     if kind == "rgbd" and config.rgbd_with_depth_network:
-        second = average_cues([second, predict_cues("depth", None, crop_depth)])
+        # the depth network's plain answer: averaged with its mirror's it made RGB-D worse (MIRROR_AVERAGED_INPUTS)
+        second = average_cues([second, predict_cues("depth", None, crop_depth, mirror_average=False)])
     cues = _cues_in_photo(second, crop, w, h)
     if config.refine_silhouette:
         edges = rgb if rgb is not None else height_image(depth, K, cues.mask)

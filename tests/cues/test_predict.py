@@ -115,11 +115,21 @@ def test_predict_cues_returns_cues_in_the_photos_pixels(tiny_weights, kind):
     t_depth = torch.from_numpy(depth_s)[None, None]
     x = network_input(kind, t_rgb, t_depth)
     with torch.no_grad():
-        want = joints_to_image(model(x)[-1].joints[0].numpy(), SIZE, width, height)
+        alone = joints_to_image(model(x)[-1].joints[0].numpy(), SIZE, width, height)
+        want = alone
         if kind in MIRROR_AVERAGED_INPUTS:  # averaged with the mirror image's, flipped back
             mirrored = joints_to_image(model(x.flip(-1))[-1].joints[0].numpy(), SIZE, width, height)
-            want = 0.5 * (want + np.stack([width - 1 - mirrored[:, 0], mirrored[:, 1]], axis=1))
+            want = 0.5 * (alone + np.stack([width - 1 - mirrored[:, 0], mirrored[:, 1]], axis=1))
     np.testing.assert_allclose(cues.joints2d_px, want, atol=1e-4)
+    # asked for it, any network answers for the image alone
+    plain = predict_cues(
+        kind,
+        rgb if kind != "depth" else None,
+        depth if kind != "rgb" else None,
+        weights=tiny_weights[kind],
+        mirror_average=False,
+    )
+    np.testing.assert_allclose(plain.joints2d_px, alone, atol=1e-4)
     assert (cues.joints2d_px[:, 0] >= -0.5).all() and (cues.joints2d_px[:, 0] <= width - 0.5).all()
     assert (cues.joints2d_px[:, 1] >= -0.5).all() and (cues.joints2d_px[:, 1] <= height - 0.5).all()
     # an RGB-D call ignores what its network does not use

@@ -17,18 +17,18 @@ from footmesh.cues.inputs import network_input
 from footmesh.cues.weights import network_for
 from footmesh.geometry.camera import rescale_pixels
 
-MIRROR_AVERAGED_INPUTS: tuple[str, ...] = ("rgb",)
+MIRROR_AVERAGED_INPUTS: tuple[str, ...] = ("rgb", "depth")
 """Inputs whose network sees each image and its mirror image, and answers their average (``predict_batch``'s
-``mirror_average``). A mirrored left foot is a right foot with the same joints, and the RGB network was trained on
-both (its flip augmentation), so averaging holds its answer to that symmetry: on the real photos of
+``mirror_average``). A mirrored left foot is a right foot with the same joints, and the networks were trained on
+both (their flip augmentation), so averaging holds their answer to that symmetry. RGB: on the real photos of
 ``../shared/real/rafiansyah`` the side came out right on 87.9 % of feet instead of 80.5 % (crop IoU 0.587 -> 0.599),
 and ``eval measure --modes rgb_ref`` (60 photos each) went from 3.54 / 2.49 to 3.50 / 2.28 mm length / width on guided
 seed 4242, 4.51 / 3.06 to 4.01 / 2.76 on seed 777 and 8.04 / 1.20 to 6.81 / 1.27 on the front views (one photo
-fewer measured), for one more image in the network's batch. Tried for the others (same photos, 60 each): the
-depth network gained on depth-alone photos (guided 4242 / 777 length 1.96 / 1.97 -> 1.66 / 1.76 mm, front 30 photos
-4.06 -> 3.95), but RGB-D photos, whose cues average the RGB-D and depth networks', lost (guided 4242 1.21 -> 1.31
-mm with the depth network averaged, 1.52 with both), so neither is averaged yet: the depth network would need its
-own setting for depth-alone photos."""
+fewer measured), for one more image in the network's batch. Depth, on depth-alone photos (``--modes depth``): guided
+4242 / 777 length 1.96 / 1.97 -> 1.66 / 1.76 mm, front 30 photos 4.06 -> 3.95. Not RGB-D: RGB-D photos, whose cues
+average the RGB-D and depth networks', lost with either averaged (guided 4242 1.21 -> 1.31 mm with the depth network
+averaged, 1.52 with both), so the pipeline asks the depth network for its plain answer there
+(``predict_cues(mirror_average=False)``)."""
 
 
 def resize_inputs(
@@ -94,6 +94,7 @@ def predict_cues(
     depth_mm: np.ndarray | None = None,
     weights: str | os.PathLike | None = None,
     image_size: int | None = None,
+    mirror_average: bool | None = None,
 ) -> Cues:
     """Silhouette and joints of one image (H, W, 3) uint8 and/or depth map (H, W) mm, in its own pixels.
 
@@ -122,7 +123,7 @@ def predict_cues(
         None if rgb_s is None else rgb_s[None],
         None if depth_s is None else depth_s[None],
         out_size=(width, height),
-        mirror_average=input_kind in MIRROR_AVERAGED_INPUTS,
+        mirror_average=input_kind in MIRROR_AVERAGED_INPUTS if mirror_average is None else mirror_average,
     )
     return Cues(
         silhouette=sil[0],
