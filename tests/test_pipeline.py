@@ -425,6 +425,11 @@ def test_a_photo_of_both_feet_measures_each_and_keeps_the_one_asked_for(tmp_path
     assert result["side"] == side and abs(result["measurements"]["stick_length"]["value_mm"] - truth) < 6.0
     assert any(m.startswith("two feet in view") for m in result["messages"])
     assert (tmp_path / "auto" / "mask.png").is_file() and (tmp_path / "auto" / "mask_1.png").is_file()
+    # each foot's own pixels: the crop around the far foot holds more of the near one, which is not its silhouette
+    first, second = (
+        cv2.imread(str(tmp_path / "auto" / name), cv2.IMREAD_GRAYSCALE) > 0 for name in ("mask.png", "mask_1.png")
+    )
+    assert (first & second).sum() < 0.05 * min(first.sum(), second.sum())
     other = "left" if side == "right" else "right"
     picked = measure_photo(paths["image"], tmp_path / "other", intrinsics=paths["intrinsics"], side=other)
     assert picked["side"] == other and "feet" not in picked  # --side: only the foot the network takes for it

@@ -113,12 +113,14 @@ def test_a_fit_off_the_silhouette_is_refused_for_every_input():
         assert "falls outside the foot" in str(refusals.fitted_foot(off, 0.0, kind, CONFIG))
 
 
-def test_outline_and_hidden_foot_are_judged_only_with_depth():
+def test_the_outline_is_judged_only_with_depth_and_a_hidden_foot_more_strictly_with_it():
     loose = FitQuality(CONFIG.min_depth_contour_followed - 0.05, 0.0, 2.0, 1.0)
     hidden = FitQuality(1.0, 0.0, 2.0, CONFIG.min_depth_foot_shown - 0.05)
     assert refusals.outline_not_followed(loose, "rgb", CONFIG) is None
     assert "outline" in str(refusals.outline_not_followed(loose, "rgbd", CONFIG))
-    assert refusals.foot_hidden(hidden, "rgb", CONFIG) is None
+    assert refusals.foot_hidden(hidden, "rgb", CONFIG) is None  # without depth the fit shrinks into what shows
+    off_the_foot = FitQuality(1.0, 0.0, 2.0, CONFIG.min_rgb_foot_shown - 0.05)
+    assert "hides the rest" in str(refusals.foot_hidden(off_the_foot, "rgb", CONFIG))
     assert "hides the rest" in str(refusals.foot_hidden(hidden, "depth", CONFIG))
     assert refusals.fitted_foot(GOOD, 0.0, "rgbd", CONFIG) is None
 

@@ -500,6 +500,11 @@ def _add_eval_commands(sub: argparse._SubParsersAction) -> None:
     real.add_argument("--sheet", help="write a contact sheet of overlays to this PNG")
     real.add_argument("--json", help="also write per-photo scores to this JSON file")
     real.add_argument("--weights", help="an RGB 2D-cues weights file to evaluate (default: the shipped one)")
+    real.add_argument(
+        "--measure",
+        action="store_true",
+        help="also run footmesh measure on each photo and score the mask.png of each foot it measured (~5 s a photo)",
+    )
     real.add_argument("--no-progress", action="store_true", help="no progress bar")
     real.set_defaults(func=_run_eval_real)
     recon = ev_sub.add_parser("recon", help="Tables 4.4, 4.5 (and 4.6 per viewpoint) of the reconstruction networks")
@@ -560,7 +565,10 @@ def _run_eval_real(args: argparse.Namespace) -> int:
     from footmesh.eval.real import run_eval
 
     try:
-        print(run_eval(args.real_set, args.sheet, args.json, progress=not args.no_progress, weights=args.weights))
+        table = run_eval(
+            args.real_set, args.sheet, args.json, not args.no_progress, weights=args.weights, measure=args.measure
+        )
+        print(table)
     except ValueError as exc:
         raise InputError(str(exc)) from None
     return 0

@@ -313,11 +313,24 @@ class MeasureConfig:
     -10, -6, -4, -3, -1 and +3 mm; the 227 kept show 0.76-1.0. Not for plain photos: without depth the fit shrinks
     the foot into what shows (0.75-1.0 on all 156 RGB + reference fits of seeds 4242, 777 and 999, the 16 off by
     more than 10 mm at 0.81-0.97)."""
+    min_rgb_foot_shown: float = 0.3
+    """Without depth, refuse the photo when less of the fitted foot below the ankle than this lies on the foot's
+    silhouette: the fit then lies wholly off the foot the photo shows, as when the camera looks down the leg and
+    the leg hides all but the toes (an ood render, 0.0: a foot 57 mm short). Every other RGB fit measured shows
+    0.47-1.0 (guided seeds 4242, 777, 999, front and ood, 60 photos each: the 0.47 one 33 mm off; the real photos
+    of ``../shared/real`` 0.82-1.0). The depth limit above is stricter: without depth the fit shrinks the foot
+    into what shows."""
     plausible_length_mm: tuple[float, float] = (185.0, 335.0)
     """A scaled fit whose foot is not this long (5 SD beyond the shape population's women's and men's mean
     lengths, 246.5 +- 12.1 and 271.6 +- 12.7 mm) is wrong: with a reference object the object was something
     else (the cut top of a trouser leg passed as a card: 133 mm short) and the photo is measured unscaled; with
     depth the photo is refused (a fit 80 mm short, guided eval seed 4242). The model knows adult feet only."""
+    trim_silhouette: bool = True
+    """Cut the networks' silhouette to where their joints say the foot can be (``cues.trim``): the shin and the
+    floor beyond it are not foot. Real photos (``../shared/real/rafiansyah``, ``footmesh eval real --measure``): the
+    located foot's IoU with the hand-drawn one 0.329 -> 0.343, ``mask.png``'s 0.288 -> 0.318, 73 -> 75 of 80 photos
+    answered (the same day, before the far one of two feet was given its own silhouette); renders: nothing cut
+    (docs/cues.md)."""
     refine_silhouette: bool = True
     """Snap the networks' silhouette to the photo's edges (``cues.refine``; needs the RGB image)."""
     floor_from_depth: bool = True

@@ -27,6 +27,7 @@ from footmesh.cues import Cues
 from footmesh.cues.floor import depth_floor
 from footmesh.cues.predict import average_cues, predict_cues
 from footmesh.cues.refine import clear_paper, height_image, refine_silhouette
+from footmesh.cues.trim import trim_silhouette
 from footmesh.errors import InputError, Refusal
 from footmesh.geometry.camera import Camera, rescale_pixels
 from footmesh.load import Photo, load_photo
@@ -134,8 +135,9 @@ def locate_feet(
 ) -> list[Located]:
     """Find the feet, largest first (one, or two when a second region is at least ``config.second_foot_ratio``
     of the first): cues on the whole photo (padded square), then again on a square crop around each region framed
-    like the training images (the foot's longer side ``config.crop_fill`` of the crop), the silhouette then
-    snapped to the photo's edges (or, with a depth map alone, to those of the height above the floor; K (3, 3))."""
+    like the training images (the foot's longer side ``config.crop_fill`` of the crop), the silhouette then cut to
+    where that crop's joints say the foot can be (``cues.trim``) and snapped to the photo's edges (or, with a depth
+    map alone, to those of the height above the floor; K (3, 3))."""
     ref = rgb if rgb is not None else depth
     h, w = ref.shape[:2]
     mask = whole_photo_cues(kind, rgb, depth).silhouette >= 0.5
@@ -159,8 +161,8 @@ def locate_feet(
 
 
 def _located_in(rgb, depth, K, kind: str, config: MeasureConfig, box: np.ndarray) -> Located | None:
-    """The second pass on the crop around one region's box (x, y, w, h px): its cues and silhouette, or None when
-    the region vanishes on the closer look."""
+    """The second pass on the crop around one region's box (x, y, w, h px): its cues and silhouette (the part of it
+    most inside the box), or None when the region vanishes on the closer look."""
     ref = rgb if rgb is not None else depth
     h, w = ref.shape[:2]
     crop = crop_around(*box, config.crop_fill)
@@ -170,6 +172,8 @@ def _located_in(rgb, depth, K, kind: str, config: MeasureConfig, box: np.ndarray
     if kind == "rgbd" and config.rgbd_with_depth_network:
         # the depth network's plain answer: averaged with its mirror's it made RGB-D worse (MIRROR_AVERAGED_INPUTS)
         second = average_cues([second, predict_cues("depth", None, crop_depth, mirror_average=False)])
+    if config.trim_silhouette:
+        second = replace(second, silhouette=trim_silhouette(second.silhouette, second.joints2d_px))
     cues = _cues_in_photo(second, crop, w, h)
     if config.refine_silhouette:
         edges = rgb if rgb is not None else height_image(depth, K, cues.mask)
@@ -179,7 +183,10 @@ def _located_in(rgb, depth, K, kind: str, config: MeasureConfig, box: np.ndarray
     n, labels, stats = _components(mask)
     if n <= 1:
         return None
-    keep = 1 + np.argmax(stats[1:, cv2.CC_STAT_AREA])
+    # the part of the region this crop was cut for: the crop may hold more of the other foot than of this one
+    x, y, bw, bh = (int(v) for v in box)
+    inside = np.bincount(labels[max(y, 0) : y + bh, max(x, 0) : x + bw].ravel(), minlength=n)[1:]
+    keep = 1 + (np.argmax(inside) if inside.any() else np.argmax(stats[1:, cv2.CC_STAT_AREA]))
     mask = labels == keep
     return Located(crop, replace(cues, silhouette=np.where(mask, cues.silhouette, 0.0).astype(np.float32)), mask)
 

@@ -190,9 +190,10 @@ def outline_not_followed(quality: FitQuality, kind: str, config: MeasureConfig) 
 
 
 def foot_hidden(quality: FitQuality, kind: str, config: MeasureConfig) -> Refusal | None:
-    """With depth: too little of the fitted foot below the ankle shows (``min_depth_foot_shown``); the fit makes
-    the rest up."""
-    if kind == "rgb" or quality.foot_shown >= config.min_depth_foot_shown:
+    """Too little of the fitted foot below the ankle shows (``min_depth_foot_shown``, without depth
+    ``min_rgb_foot_shown``); the fit makes the rest up."""
+    least = config.min_rgb_foot_shown if kind == "rgb" else config.min_depth_foot_shown
+    if quality.foot_shown >= least:
         return None
     return Refusal(
         f"only {100 * quality.foot_shown:.0f} % of the fitted foot below the ankle shows in the photo (the leg or a "

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 
 import cv2
 import numpy as np
@@ -50,14 +51,19 @@ def test_a_rendered_set_with_its_true_masks_scores_high(tmp_path):
         }
     (tmp_path / "labels.json").write_text(json.dumps(labels))
     sheet = tmp_path / "sheet.png"
-    scores = evaluate_set(tmp_path, sheet, progress=False)
+    scores = evaluate_set(tmp_path, sheet, progress=False, measure=True)
     assert scores[0].iou > 0.7
     assert scores[1].iou < scores[0].iou - 0.3
     assert len(scores[0].crop_ious) == 1 and scores[0].crop_ious[0] > 0.7  # the crop the fit sees, on the foot
+    assert len(scores[0].located_ious) == 1 and scores[0].located_ious[0] > 0.7  # the pipeline's located foot
+    assert scores[1].located_ious[0] < 0.3  # on the wrong mask: the scoring tells
+    assert scores[0].answered and scores[0].measured_ious[0] > 0.7  # footmesh measure's mask.png, on the foot
+    assert scores[1].measured_ious[0] < 0.3
     assert scores[0].predicted_sides == scores[0].feet  # the shipped RGB network's left/right head
     assert cv2.imread(str(sheet)).shape[:2] == (240, 480)
     table = format_table("renders", summarise(scores))
     assert "2 photos, 2 feet" in table and "mean silhouette IoU" in table and "on the crop" in table
+    assert "located foot" in table and re.search(r"photos answered by footmesh measure +2 ", table)
 
 
 def test_a_folder_without_labels_is_refused_clearly(tmp_path):

@@ -6,8 +6,10 @@ the photos and masks it names (mask pixels: 0 not foot, 1 left foot, 2 right foo
 pass does, and its silhouette (>= 0.5) is compared with the union of the hand-drawn feet. Left/right is scored
 per hand-drawn foot: the network sees the square crop the pipeline's second pass would cut around that foot
 (``pipeline.crop_around``, ``MeasureConfig.crop_fill``), so the side is judged apart from the first pass's
-silhouette; that crop's silhouette is scored too (IoU with the hand-drawn feet inside the crop), as it is the
-one the fit sees. These photos are for evaluation only: nothing here trains or tunes on them.
+silhouette; that crop's silhouette is scored too (IoU with the hand-drawn feet inside the crop). The foot the
+fit is given is scored last: the pipeline's own located foot (its framing, the cut to the joints and the snap to
+the photo's edges; shipped network only) that best matches each hand-drawn one. These photos are for evaluation
+only: nothing here trains or tunes on them.
 """
 
 from __future__ import annotations
@@ -20,6 +22,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from footmesh.config import MeasureConfig
 from footmesh.report import atomic_path, write_json
 
 GOOD_IOU = 0.8
@@ -33,7 +36,10 @@ class PhotoScore:
     """Silhouette agreement of one photo: ``iou``, ``precision`` (predicted foot pixels that are foot) and
     ``recall`` (foot pixels predicted), each in [0, 1]; ``feet`` the hand-labelled sides; ``predicted_sides``
     the network's side of each of those feet (empty for a network without a left/right head); ``crop_ious`` the
-    IoU of the silhouette on the crop around each foot."""
+    IoU of the silhouette on the crop around each foot; ``located_ious`` that of the pipeline's own located foot
+    that best matches each hand-drawn one (0 when it found none; ``located_scores``); with ``measure``,
+    ``measured_ious`` that of the best-matching ``mask.png`` that ``footmesh measure`` wrote (0 when it refused the
+    photo: ``answered`` False)."""
 
     photo: str
     iou: float
@@ -42,6 +48,9 @@ class PhotoScore:
     feet: tuple[str, ...]
     predicted_sides: tuple[str, ...] = ()
     crop_ious: tuple[float, ...] = ()
+    located_ious: tuple[float, ...] = ()
+    measured_ious: tuple[float, ...] = ()
+    answered: bool | None = None
 
 
 def mask_scores(predicted: np.ndarray, truth: np.ndarray) -> tuple[float, float, float]:
@@ -84,9 +93,11 @@ def evaluate_set(
     sheet: str | os.PathLike | None = None,
     progress: bool = True,
     weights: str | os.PathLike | None = None,
+    measure: bool = False,
 ) -> list[PhotoScore]:
     """Score every photo of a real set with the shipped RGB network (or the one in ``weights``); write a contact
-    sheet of overlays to ``sheet`` (PNG) if given."""
+    sheet of overlays to ``sheet`` (PNG) if given; ``measure``: also run the whole pipeline on each photo and score
+    the masks it writes (``measured_ious``; the shipped networks only)."""
     from tqdm import tqdm
 
     from footmesh.load import load_image
@@ -96,17 +107,19 @@ def evaluate_set(
     scores, tiles = [], []
     for entry in tqdm(read_set(folder), desc=f"eval real {folder.name}", disable=not progress):
         rgb, _ = load_image(folder / entry["photo"])
-        truth_img = cv2.imread(str(folder / entry["mask"]), cv2.IMREAD_GRAYSCALE)
-        if truth_img is None:
-            raise ValueError(f"{folder / entry['mask']} is not a readable mask image")
-        if truth_img.shape != rgb.shape[:2]:
-            raise ValueError(f"{entry['mask']} is {truth_img.shape[::-1]} px but its photo {rgb.shape[1::-1]}")
+        truth_img = _read_mask(folder, entry, rgb.shape[:2])
         predicted = whole_photo_cues("rgb", rgb, None, weights).silhouette >= 0.5
         truth = truth_img > 0
         iou, precision, recall = mask_scores(predicted, truth)
         feet = tuple(f["side"] for f in entry["feet"])
         sides, crop_ious = crop_scores(rgb, truth_img, feet, weights)
-        scores.append(PhotoScore(entry["photo"], iou, precision, recall, feet, sides, crop_ious))
+        located = () if weights is not None else located_ious(folder / entry["photo"], truth_img, feet)
+        answered, measured = None, ()
+        if measure and weights is None:
+            answered, measured = measured_ious(folder / entry["photo"], truth_img, feet)
+        scores.append(
+            PhotoScore(entry["photo"], iou, precision, recall, feet, sides, crop_ious, located, measured, answered)
+        )
         if sheet is not None:
             said = f" L/R {''.join(s[0].upper() for s in sides)}" if sides else ""
             tiles.append(overlay_tile(rgb, predicted, truth, f"IoU {iou:.2f}{said}"))
@@ -139,6 +152,71 @@ def crop_scores(
     return tuple(sides) if len(sides) == len(feet) else (), tuple(ious)
 
 
+def located_ious(
+    photo_path: str | os.PathLike, mask: np.ndarray, feet: tuple[str, ...], config: MeasureConfig | None = None
+) -> tuple[float, ...]:
+    """Per hand-drawn foot (``mask`` values ``MASK_VALUE``): the IoU of the best-matching foot the pipeline
+    locates in the photo (``pipeline.locate_feet`` at its working resolution, as ``footmesh measure`` runs it: both
+    passes of the shipped RGB network, the cut to the joints and the snap to the photo's edges), 0 when it locates
+    none (a refusal, or no foot there)."""
+    from footmesh.errors import Refusal
+    from footmesh.load import load_photo
+    from footmesh.pipeline import locate_feet, working_photo
+
+    config = config if config is not None else MeasureConfig()
+    rgb, _, camera, _ = working_photo(load_photo(photo_path), config.rgb_working_max_side)
+    try:
+        found = [foot.mask for foot in locate_feet(rgb, None, camera.K, "rgb", config)]
+    except Refusal:
+        found = []
+    small = cv2.resize(mask, rgb.shape[1::-1], interpolation=cv2.INTER_NEAREST)
+    return tuple(max((mask_scores(f, small == MASK_VALUE[side])[0] for f in found), default=0.0) for side in feet)
+
+
+def measured_ious(
+    photo_path: str | os.PathLike, mask: np.ndarray, feet: tuple[str, ...]
+) -> tuple[bool, tuple[float, ...]]:
+    """Whether ``footmesh measure`` answered the photo (default settings) and, per hand-drawn foot (``mask``
+    values ``MASK_VALUE``), the IoU of the best-matching foot mask it wrote (``mask.png``, ``mask_1.png``: photo
+    pixels); all 0 when it refused the photo."""
+    import tempfile
+
+    from footmesh.errors import Refusal
+    from footmesh.pipeline import measure_photo
+
+    with tempfile.TemporaryDirectory() as out:
+        try:
+            measure_photo(photo_path, out)
+        except Refusal:
+            return False, (0.0,) * len(feet)
+        written = [cv2.imread(str(path), cv2.IMREAD_GRAYSCALE) > 0 for path in sorted(Path(out).glob("mask*.png"))]
+    ious = tuple(max((mask_scores(m, mask == MASK_VALUE[side])[0] for m in written), default=0.0) for side in feet)
+    return True, ious
+
+
+def located_scores(folder: str | os.PathLike, config: MeasureConfig | None = None) -> list[float]:
+    """``located_ious`` of every hand-drawn foot of a real set (``config``: the pipeline's settings)."""
+    from footmesh.load import load_image
+
+    folder = Path(folder)
+    ious: list[float] = []
+    for entry in read_set(folder):
+        feet = tuple(f["side"] for f in entry["feet"])
+        mask = _read_mask(folder, entry, load_image(folder / entry["photo"])[0].shape[:2])
+        ious += located_ious(folder / entry["photo"], mask, feet, config)
+    return ious
+
+
+def _read_mask(folder: Path, entry: dict, shape: tuple[int, int]) -> np.ndarray:
+    """The (H, W) uint8 hand-drawn mask of an entry, checked to be readable and of its photo's ``shape``."""
+    mask = cv2.imread(str(folder / entry["mask"]), cv2.IMREAD_GRAYSCALE)
+    if mask is None:
+        raise ValueError(f"{folder / entry['mask']} is not a readable mask image")
+    if mask.shape != shape:
+        raise ValueError(f"{entry['mask']} is {mask.shape[::-1]} px but its photo {shape[::-1]}")
+    return mask
+
+
 def overlay_tile(rgb: np.ndarray, predicted: np.ndarray, truth: np.ndarray, caption: str) -> np.ndarray:
     """A small (h, w, 3) uint8 overlay: predicted foot tinted cyan, hand-drawn outline green, caption on top."""
     tile = rgb.astype(np.float32)
@@ -166,10 +244,13 @@ def write_contact_sheet(tiles: list[np.ndarray], path: str | os.PathLike, column
 
 def summarise(scores: list[PhotoScore]) -> dict[str, float]:
     """Mean IoU, precision and recall, the share of photos with IoU >= ``GOOD_IOU``, the mean IoU on the crops
-    around the feet and the share of feet whose side the network got right (None without a left/right head)."""
+    around the feet, that of the pipeline's located feet (None where not scored) and the share of feet whose side
+    the network got right (None without a left/right head)."""
     if not scores:
         raise ValueError("no photos to summarise")
     judged = [(t, p) for s in scores if s.predicted_sides for t, p in zip(s.feet, s.predicted_sides, strict=True)]
+    located = [i for s in scores for i in s.located_ious]
+    measured = [i for s in scores for i in s.measured_ious]
     return {
         "photos": len(scores),
         "feet": sum(len(s.feet) for s in scores),
@@ -178,6 +259,9 @@ def summarise(scores: list[PhotoScore]) -> dict[str, float]:
         "mean_recall": float(np.mean([s.recall for s in scores])),
         "share_iou_ge_0.8": float(np.mean([s.iou >= GOOD_IOU for s in scores])),
         "mean_crop_iou": float(np.mean([i for s in scores for i in s.crop_ious])),
+        "mean_located_iou": float(np.mean(located)) if located else None,
+        "mean_measured_iou": float(np.mean(measured)) if measured else None,
+        "answered": sum(bool(s.answered) for s in scores) if measured else None,
         "side_right_share": float(np.mean([t == p for t, p in judged])) if judged else None,
     }
 
@@ -190,7 +274,10 @@ def format_table(name: str, summary: dict[str, float]) -> str:
         ("mean precision", f"{summary['mean_precision']:.3f}", "-"),
         ("mean recall", f"{summary['mean_recall']:.3f}", "-"),
         (f"photos with IoU >= {GOOD_IOU}", f"{100 * summary['share_iou_ge_0.8']:.1f} %", "-"),
-        ("mean IoU on the crop per foot", f"{summary['mean_crop_iou']:.3f}", "- (second pass, what the fit sees)"),
+        ("mean IoU on the crop per foot", f"{summary['mean_crop_iou']:.3f}", "- (second pass, framed on the foot)"),
+        ("mean IoU of the located foot", _or_dash(summary["mean_located_iou"]), "- (what the fit sees)"),
+        ("mean IoU of the measured foot's mask.png", _or_dash(summary["mean_measured_iou"]), "- (--measure)"),
+        ("photos answered by footmesh measure", _or_dash(summary["answered"], "d"), "- (--measure)"),
         ("side right, per foot", "no left/right head" if side is None else f"{100 * side:.1f} %", ">= 95 %"),
     ]
     width = max(len(r[0]) for r in rows)
@@ -199,15 +286,21 @@ def format_table(name: str, summary: dict[str, float]) -> str:
     return "\n".join(lines)
 
 
+def _or_dash(value: float | None, spec: str = ".3f") -> str:
+    return "-" if value is None else format(value, spec)
+
+
 def run_eval(
     folder: str | os.PathLike,
     sheet: str | os.PathLike | None,
     json_out: str | None,
     progress: bool,
     weights: str | os.PathLike | None = None,
+    measure: bool = False,
 ) -> str:
-    """Evaluate a real set; optionally write per-photo scores to ``json_out``; return the printed table."""
-    scores = evaluate_set(folder, sheet, progress, weights)
+    """Evaluate a real set (``evaluate_set``); optionally write per-photo scores to ``json_out``; return the
+    printed table."""
+    scores = evaluate_set(folder, sheet, progress, weights, measure)
     summary = summarise(scores)
     if json_out:
         write_json(json_out, {"summary": summary, "photos": [asdict(s) for s in scores]})
