@@ -25,7 +25,7 @@ import numpy as np
 VIEW_SETS = ("guided", "front", "ood", "tele", "front_tele")
 
 
-def reach(views: str, n: int, seed: int = 4242) -> dict[str, np.ndarray | float]:
+def reach(views: str, n: int, seed: int = 4242) -> dict[str, np.ndarray]:
     """Per photo of ``views``: the foot's reach behind the heel, past the toes and across (each (n,), units of S),
     and the share of true silhouette pixels outside ``foot_region`` of the true joints."""
     from footmesh.cues.trim import foot_axes, foot_region
