@@ -503,7 +503,8 @@ def _add_eval_commands(sub: argparse._SubParsersAction) -> None:
     real.add_argument(
         "--measure",
         action="store_true",
-        help="also run footmesh measure on each photo and score the mask.png of each foot it measured (~5 s a photo)",
+        help="also run footmesh measure on each photo and score the mask.png of each foot it measured (~5 s a "
+        "photo); the contact sheet then shows those masks",
     )
     real.add_argument("--no-progress", action="store_true", help="no progress bar")
     real.set_defaults(func=_run_eval_real)

@@ -96,8 +96,9 @@ def evaluate_set(
     measure: bool = False,
 ) -> list[PhotoScore]:
     """Score every photo of a real set with the shipped RGB network (or the one in ``weights``); write a contact
-    sheet of overlays to ``sheet`` (PNG) if given; ``measure``: also run the whole pipeline on each photo and score
-    the masks it writes (``measured_ious``; the shipped networks only)."""
+    sheet of overlays to ``sheet`` (PNG) if given (the first pass's silhouette, or with ``measure`` the masks
+    ``footmesh measure`` wrote); ``measure``: also run the whole pipeline on each photo and score the masks it
+    writes (``measured_ious``; the shipped networks only)."""
     from tqdm import tqdm
 
     from footmesh.load import load_image
@@ -114,15 +115,16 @@ def evaluate_set(
         feet = tuple(f["side"] for f in entry["feet"])
         sides, crop_ious = crop_scores(rgb, truth_img, feet, weights)
         located = () if weights is not None else located_ious(folder / entry["photo"], truth_img, feet)
-        answered, measured = None, ()
+        answered, measured, shown, caption = None, (), predicted, f"IoU {iou:.2f}"
         if measure and weights is None:
-            answered, measured = measured_ious(folder / entry["photo"], truth_img, feet)
+            answered, measured, shown = measured_ious(folder / entry["photo"], truth_img, feet)
+            caption = "mask.png " + (" ".join(f"{i:.2f}" for i in measured) if answered else "refused")
         scores.append(
             PhotoScore(entry["photo"], iou, precision, recall, feet, sides, crop_ious, located, measured, answered)
         )
         if sheet is not None:
             said = f" L/R {''.join(s[0].upper() for s in sides)}" if sides else ""
-            tiles.append(overlay_tile(rgb, predicted, truth, f"IoU {iou:.2f}{said}"))
+            tiles.append(overlay_tile(rgb, shown, truth, caption + said))
     if sheet is not None and tiles:
         write_contact_sheet(tiles, sheet)
     return scores
@@ -175,10 +177,10 @@ def located_ious(
 
 def measured_ious(
     photo_path: str | os.PathLike, mask: np.ndarray, feet: tuple[str, ...]
-) -> tuple[bool, tuple[float, ...]]:
-    """Whether ``footmesh measure`` answered the photo (default settings) and, per hand-drawn foot (``mask``
-    values ``MASK_VALUE``), the IoU of the best-matching foot mask it wrote (``mask.png``, ``mask_1.png``: photo
-    pixels); all 0 when it refused the photo."""
+) -> tuple[bool, tuple[float, ...], np.ndarray]:
+    """Whether ``footmesh measure`` answered the photo (default settings), per hand-drawn foot (``mask`` values
+    ``MASK_VALUE``) the IoU of the best-matching foot mask it wrote (``mask.png``, ``mask_1.png``: photo pixels;
+    all 0 when it refused the photo), and the union of those masks (H, W) bool."""
     import tempfile
 
     from footmesh.errors import Refusal
@@ -188,10 +190,10 @@ def measured_ious(
         try:
             measure_photo(photo_path, out)
         except Refusal:
-            return False, (0.0,) * len(feet)
+            return False, (0.0,) * len(feet), np.zeros(mask.shape, bool)
         written = [cv2.imread(str(path), cv2.IMREAD_GRAYSCALE) > 0 for path in sorted(Path(out).glob("mask*.png"))]
     ious = tuple(max((mask_scores(m, mask == MASK_VALUE[side])[0] for m in written), default=0.0) for side in feet)
-    return True, ious
+    return True, ious, np.any(written, axis=0) if written else np.zeros(mask.shape, bool)
 
 
 def located_scores(folder: str | os.PathLike, config: MeasureConfig | None = None) -> list[float]:
