@@ -310,9 +310,9 @@ class MeasureConfig:
     """With a depth map, refuse the photo when less of the fitted foot below the ankle than this lies on the foot's
     silhouette (``FootFit.quality["foot_shown"]``): the rest is hidden by the leg or a trouser and the fit makes it up.
     Guided photos, seeds 4242 and 777 (60 each), RGB-D and depth, 236 measured: refuses 9, off by -70, -23, -12,
-    -10, -6, -4, -3, -1 and +3 mm; the 227 kept show 0.76-1.0. Not for plain photos: without depth the fit shrinks
-    the foot into what shows (0.75-1.0 on all 156 RGB + reference fits of seeds 4242, 777 and 999, the 16 off by
-    more than 10 mm at 0.81-0.97)."""
+    -10, -6, -4, -3, -1 and +3 mm; the 227 kept show 0.76-1.0. Plain photos have a lower limit of their own
+    (``min_rgb_foot_shown``): without depth the fit shrinks the foot into what shows (0.75-1.0 on all 156 RGB +
+    reference fits of seeds 4242, 777 and 999, the 16 off by more than 10 mm at 0.81-0.97)."""
     min_rgb_foot_shown: float = 0.3
     """Without depth, refuse the photo when less of the fitted foot below the ankle than this lies on the foot's
     silhouette: the fit then lies wholly off the foot the photo shows, as when the camera looks down the leg and
