@@ -30,11 +30,14 @@ def reach(views: str, n: int, seed: int = 4242) -> dict[str, np.ndarray]:
     and the share of true silhouette pixels outside ``foot_region`` of the true joints."""
     from footmesh.cues.trim import foot_axes, foot_region
     from footmesh.eval.measure import MODES, REFERENCES
+    from footmesh.fit import projected_mask
     from footmesh.geometry.camera import project
+    from footmesh.model.layer import default_model
     from footmesh.synth.render import Renderer
     from footmesh.synth.scene import view_config
 
     renderers: dict[str, Renderer] = {}
+    faces = {side: default_model().faces(side).numpy() for side in ("left", "right")}
     behind, past, across, cut = [], [], [], []
     for i in range(n):
         reference = REFERENCES[i % len(REFERENCES)]
@@ -49,19 +52,15 @@ def reach(views: str, n: int, seed: int = 4242) -> dict[str, np.ndarray]:
         behind.append(-along.min())
         past.append(along.max() - axes.length / axes.size)
         across.append(side.max())
-        silhouette = sample["silhouette"] & _hull(uv, sample["silhouette"].shape)  # not the other foot's pixels
+        # this foot's pixels (the ood views' other foot is foot in the silhouette too)
+        side = "right" if int(sample["side"]) else "left"
+        own = projected_mask(
+            sample["vertices"].astype(np.float64), faces[side], sample["K"], sample["silhouette"].shape
+        )
+        silhouette = sample["silhouette"] & own
         kept = foot_region(silhouette.shape, sample["joints2d"])
         cut.append(float((silhouette & ~kept).sum() / max(silhouette.sum(), 1)))
     return {"behind": np.array(behind), "past": np.array(past), "across": np.array(across), "cut": np.array(cut)}
-
-
-def _hull(points_px: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
-    """(H, W) bool: the convex hull of points (N, 2) px."""
-    import cv2
-
-    hull = np.zeros(shape, np.uint8)
-    cv2.fillConvexPoly(hull, cv2.convexHull(np.round(points_px).astype(np.int32)), 1)
-    return hull > 0
 
 
 def reach_table(results: dict[str, dict]) -> str:

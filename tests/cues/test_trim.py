@@ -2,12 +2,12 @@
 
 from __future__ import annotations
 
-import cv2
 import numpy as np
 import pytest
 
 from footmesh.cues.trim import TrimConfig, foot_axes, foot_region, trim_silhouette
-from footmesh.geometry.camera import project
+from footmesh.fit import projected_mask
+from footmesh.model.layer import default_model
 from footmesh.synth.render import Renderer
 from footmesh.synth.scene import view_config
 
@@ -18,10 +18,9 @@ def test_a_rendered_foot_with_its_true_joints_loses_no_pixel(views):
     for i in range(8):
         sample = renderer.render(43, i)
         # this foot's pixels: the ood views' other foot is foot in the silhouette too
-        uv, _ = project(sample["vertices"].astype(np.float64), sample["K"])
-        hull = np.zeros(sample["silhouette"].shape, np.uint8)
-        cv2.fillConvexPoly(hull, cv2.convexHull(np.round(uv).astype(np.int32)), 1)
-        silhouette = (sample["silhouette"] & (hull > 0)).astype(np.float32)
+        faces = default_model().faces("right" if int(sample["side"]) else "left").numpy()
+        own = projected_mask(sample["vertices"].astype(np.float64), faces, sample["K"], sample["silhouette"].shape)
+        silhouette = (sample["silhouette"] & own).astype(np.float32)
         trimmed = trim_silhouette(silhouette, sample["joints2d"])
         assert trimmed.dtype == np.float32 and trimmed.shape == silhouette.shape
         np.testing.assert_array_equal(trimmed, silhouette)

@@ -18,12 +18,16 @@ import json
 import os
 from dataclasses import asdict, dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import cv2
 import numpy as np
 
 from footmesh.config import MeasureConfig
 from footmesh.report import atomic_path, write_json
+
+if TYPE_CHECKING:
+    from footmesh.load import Photo
 
 GOOD_IOU = 0.8
 """A photo counts as segmented well from this IoU on (issue 18's share of photos)."""
@@ -101,23 +105,24 @@ def evaluate_set(
     writes (``measured_ious``; the shipped networks only)."""
     from tqdm import tqdm
 
-    from footmesh.load import load_image
+    from footmesh.load import load_photo
     from footmesh.pipeline import whole_photo_cues
 
     folder = Path(folder)
     scores, tiles = [], []
     for entry in tqdm(read_set(folder), desc=f"eval real {folder.name}", disable=not progress):
-        rgb, _ = load_image(folder / entry["photo"])
+        photo = load_photo(folder / entry["photo"])
+        rgb = photo.rgb
         truth_img = _read_mask(folder, entry, rgb.shape[:2])
         predicted = whole_photo_cues("rgb", rgb, None, weights).silhouette >= 0.5
         truth = truth_img > 0
         iou, precision, recall = mask_scores(predicted, truth)
         feet = tuple(f["side"] for f in entry["feet"])
         sides, crop_ious = crop_scores(rgb, truth_img, feet, weights)
-        located = () if weights is not None else located_ious(folder / entry["photo"], truth_img, feet)
+        located = () if weights is not None else located_ious(photo, truth_img, feet)
         answered, measured, shown, caption = None, (), predicted, f"IoU {iou:.2f}"
         if measure and weights is None:
-            answered, measured, shown = measured_ious(folder / entry["photo"], truth_img, feet)
+            answered, measured, shown = measured_ious(photo, truth_img, feet)
             caption = "mask.png " + (" ".join(f"{i:.2f}" for i in measured) if answered else "refused")
         scores.append(
             PhotoScore(entry["photo"], iou, precision, recall, feet, sides, crop_ious, located, measured, answered)
@@ -155,57 +160,59 @@ def crop_scores(
 
 
 def located_ious(
-    photo_path: str | os.PathLike, mask: np.ndarray, feet: tuple[str, ...], config: MeasureConfig | None = None
+    photo: Photo, mask: np.ndarray, feet: tuple[str, ...], config: MeasureConfig | None = None
 ) -> tuple[float, ...]:
     """Per hand-drawn foot (``mask`` values ``MASK_VALUE``): the IoU of the best-matching foot the pipeline
     locates in the photo (``pipeline.locate_feet`` at its working resolution, as ``footmesh measure`` runs it: both
     passes of the shipped RGB network, the cut to the joints and the snap to the photo's edges), 0 when it locates
     none (a refusal, or no foot there)."""
     from footmesh.errors import Refusal
-    from footmesh.load import load_photo
     from footmesh.pipeline import locate_feet, working_photo
 
     config = config if config is not None else MeasureConfig()
-    rgb, _, camera, _ = working_photo(load_photo(photo_path), config.rgb_working_max_side)
+    rgb, _, camera, _ = working_photo(photo, config.rgb_working_max_side)
     try:
         found = [foot.mask for foot in locate_feet(rgb, None, camera.K, "rgb", config)]
     except Refusal:
         found = []
-    small = cv2.resize(mask, rgb.shape[1::-1], interpolation=cv2.INTER_NEAREST)
-    return tuple(max((mask_scores(f, small == MASK_VALUE[side])[0] for f in found), default=0.0) for side in feet)
+    return _best_ious(found, cv2.resize(mask, rgb.shape[1::-1], interpolation=cv2.INTER_NEAREST), feet)
 
 
-def measured_ious(
-    photo_path: str | os.PathLike, mask: np.ndarray, feet: tuple[str, ...]
-) -> tuple[bool, tuple[float, ...], np.ndarray]:
+def measured_ious(photo: Photo, mask: np.ndarray, feet: tuple[str, ...]) -> tuple[bool, tuple[float, ...], np.ndarray]:
     """Whether ``footmesh measure`` answered the photo (default settings), per hand-drawn foot (``mask`` values
     ``MASK_VALUE``) the IoU of the best-matching foot mask it wrote (``mask.png``, ``mask_1.png``: photo pixels;
     all 0 when it refused the photo), and the union of those masks (H, W) bool."""
     import tempfile
 
     from footmesh.errors import Refusal
-    from footmesh.pipeline import measure_photo
+    from footmesh.pipeline import measure_loaded_photo
+    from footmesh.report import request_options
 
     with tempfile.TemporaryDirectory() as out:
         try:
-            measure_photo(photo_path, out)
+            measure_loaded_photo(photo, out, request_options("auto", "mm", "auto"))
         except Refusal:
             return False, (0.0,) * len(feet), np.zeros(mask.shape, bool)
         written = [cv2.imread(str(path), cv2.IMREAD_GRAYSCALE) > 0 for path in sorted(Path(out).glob("mask*.png"))]
-    ious = tuple(max((mask_scores(m, mask == MASK_VALUE[side])[0] for m in written), default=0.0) for side in feet)
-    return True, ious, np.any(written, axis=0) if written else np.zeros(mask.shape, bool)
+    return True, _best_ious(written, mask, feet), np.any(written, axis=0) if written else np.zeros(mask.shape, bool)
+
+
+def _best_ious(found: list[np.ndarray], mask: np.ndarray, feet: tuple[str, ...]) -> tuple[float, ...]:
+    """Per hand-drawn foot of ``mask`` (values ``MASK_VALUE``): the best IoU of any of the ``found`` (H, W) bool
+    masks with it, 0 when there is none."""
+    return tuple(max((mask_scores(f, mask == MASK_VALUE[side])[0] for f in found), default=0.0) for side in feet)
 
 
 def located_scores(folder: str | os.PathLike, config: MeasureConfig | None = None) -> list[float]:
     """``located_ious`` of every hand-drawn foot of a real set (``config``: the pipeline's settings)."""
-    from footmesh.load import load_image
+    from footmesh.load import load_photo
 
     folder = Path(folder)
     ious: list[float] = []
     for entry in read_set(folder):
+        photo = load_photo(folder / entry["photo"])
         feet = tuple(f["side"] for f in entry["feet"])
-        mask = _read_mask(folder, entry, load_image(folder / entry["photo"])[0].shape[:2])
-        ious += located_ious(folder / entry["photo"], mask, feet, config)
+        ious += located_ious(photo, _read_mask(folder, entry, photo.rgb.shape[:2]), feet, config)
     return ious
 
 
