@@ -550,3 +550,38 @@ def test_an_rgbd_foot_whose_heel_the_shin_hides_stands_on_the_floor_the_depth_sh
     assert abs(lowest) < 4.0 and abs(error) < 9.0, (lowest, error)
     lowest_off, error_off = measured(False)
     assert lowest_off > 6.0 and abs(error_off) > abs(error), (lowest_off, error_off)  # where the floor mattered
+
+
+def test_an_rgbd_photo_of_a_small_far_foot_is_found_by_its_colours(tmp_path):
+    """An ood eval photo (seed 4242, RGB-D photo 42): the camera looks straight down a leg stump at a foot filling
+    0.4 % of the photo. The RGB-D network's look at the whole photo (its depth relative to the median) finds no
+    foot there, the RGB network's does: measured, not refused as "no foot"."""
+    from footmesh.eval.measure import true_measurements
+    from footmesh.synth.render import Renderer
+    from footmesh.synth.scene import view_config
+
+    sample = Renderer(view_config("ood", size=640, reference="none")).render(4242 + 1, 42)
+    paths = write_inputs(sample, tmp_path / "in", with_depth=True)
+    truth = true_measurements(sample["shape"], "right" if int(sample["side"]) else "left")["stick_length"]
+    result = measure_photo(paths["image"], tmp_path / "out", depth=paths["depth"], intrinsics=paths["intrinsics"])
+    assert result["scale_source"] == "depth"
+    assert abs(result["measurements"]["stick_length"]["value_mm"] - truth) < 6.0
+
+
+def test_a_foot_region_that_vanishes_on_the_closer_look_is_refused_not_an_internal_error(tmp_path, monkeypatch):
+    """The second look at the foot's region leaves a few foot pixels: a refusal that says so, not the fit's "no
+    foot to fit" (which the CLI reports as footmesh's own fault)."""
+    import footmesh.pipeline as pipeline
+
+    def a_speck(silhouette, joints2d_px):
+        speck = np.zeros_like(silhouette)
+        speck[100:103, 100:103] = 1.0  # 9 px
+        return speck
+
+    monkeypatch.setattr(pipeline, "trim_silhouette", a_speck)
+    ex = next(e for e in examples() if e.depth is not None)
+    with pytest.raises(Refusal, match="no foot found"):
+        measure_photo(
+            ex.image, tmp_path, depth=ex.depth, intrinsics=ex.intrinsics, config=MeasureConfig(refine_silhouette=False)
+        )
+    assert not (tmp_path / "result.json").exists()

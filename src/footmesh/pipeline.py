@@ -144,6 +144,12 @@ def locate_feet(
     n, labels, stats = _components(mask)
     areas = stats[1:, cv2.CC_STAT_AREA] if n > 1 else np.zeros(0)
     refusal = refusals.no_foot(float(areas.max()) if areas.size else 0.0, h * w, config)
+    if refusal is not None and kind != "rgb" and rgb is not None:
+        # a small, far foot: the whole photo's depth (relative to its median) barely shows it, its colours do
+        mask = whole_photo_cues("rgb", rgb, None).silhouette >= 0.5
+        n, labels, stats = _components(mask)
+        areas = stats[1:, cv2.CC_STAT_AREA] if n > 1 else np.zeros(0)
+        refusal = refusals.no_foot(float(areas.max()) if areas.size else 0.0, h * w, config)
     if refusal is not None:
         raise refusal
     order = np.argsort(areas)[::-1]
@@ -163,6 +169,8 @@ def locate_feet(
 def _located_in(rgb, depth, K, kind: str, config: MeasureConfig, box: np.ndarray) -> Located | None:
     """The second pass on the crop around one region's box (x, y, w, h px): its cues and silhouette (the part of it
     most inside the box), or None when the region vanishes on the closer look."""
+    from footmesh.fit import MIN_SILHOUETTE_PX
+
     ref = rgb if rgb is not None else depth
     h, w = ref.shape[:2]
     crop = crop_around(*box, config.crop_fill)
@@ -187,6 +195,8 @@ def _located_in(rgb, depth, K, kind: str, config: MeasureConfig, box: np.ndarray
     x, y, bw, bh = (int(v) for v in box)
     inside = np.bincount(labels[max(y, 0) : y + bh, max(x, 0) : x + bw].ravel(), minlength=n)[1:]
     keep = 1 + (np.argmax(inside) if inside.any() else np.argmax(stats[1:, cv2.CC_STAT_AREA]))
+    if stats[keep, cv2.CC_STAT_AREA] < MIN_SILHOUETTE_PX:
+        return None  # a few pixels: nothing the fit could take for a foot
     mask = labels == keep
     return Located(crop, replace(cues, silhouette=np.where(mask, cues.silhouette, 0.0).astype(np.float32)), mask)
 

@@ -8,6 +8,7 @@ The fit's own check on synthetic scenes is ``footmesh.eval.fit_check``.
 """
 
 from footmesh.fit.core import (
+    MIN_SILHOUETTE_PX,
     SIDES,
     FitConfig,
     FitInit,
@@ -29,6 +30,7 @@ from footmesh.fit.core import (
 )
 
 __all__ = [
+    "MIN_SILHOUETTE_PX",
     "SIDES",
     "FitConfig",
     "FitInit",

@@ -96,6 +96,8 @@ RIM_COS = 0.25
 """A vertex is on the rim (seen edge-on) when its normal is within this cosine of perpendicular to its sight line."""
 FD_STEP = 1e-6
 """Forward-difference step of the Jacobian (radians, mm, SD units alike; float64)."""
+MIN_SILHOUETTE_PX = 20
+"""A silhouette with fewer foot pixels holds no foot to fit (``fit_foot`` raises; the pipeline refuses first)."""
 LM_INITIAL_DAMPING = 1e-2
 LM_RETRIES = 5
 LM_MIN_DAMPING = 1e-5
@@ -593,7 +595,7 @@ def silhouette_contour(silhouette: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 def _evidence(cues: Cues, K: np.ndarray, depth_mm, cam_from_floor, config: FitConfig) -> _Evidence:
     mask = cues.mask
-    if mask.sum() < 20:
+    if mask.sum() < MIN_SILHOUETTE_PX:
         raise ValueError(f"cues: the silhouette has only {int(mask.sum())} foot pixels; no foot to fit")
     K = np.asarray(K, dtype=np.float64)
     rng = np.random.default_rng(0)  # sample choice only; fixed so that a fit is reproducible
