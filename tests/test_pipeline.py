@@ -585,3 +585,22 @@ def test_a_foot_region_that_vanishes_on_the_closer_look_is_refused_not_an_intern
             ex.image, tmp_path, depth=ex.depth, intrinsics=ex.intrinsics, config=MeasureConfig(refine_silhouette=False)
         )
     assert not (tmp_path / "result.json").exists()
+
+
+def test_the_silhouette_kept_is_the_part_the_joints_lie_on():
+    """Of two feet in a crop, the network may put its joints on one while the region the crop was cut for is the
+    other (real photos of both feet): the part holding the joints is the fit's foot; joints on no part leave the
+    choice to the region."""
+    from footmesh.pipeline import _part_of_the_joints, _same_foot
+
+    labels = np.zeros((100, 200), np.int32)
+    labels[20:80, 10:60] = 1
+    labels[20:80, 120:180] = 2
+    on_second = np.column_stack([np.linspace(125, 175, 18), np.linspace(25, 75, 18)]).astype(np.float32)
+    cues = Cues(np.zeros((100, 200), np.float32), on_second, np.full(18, 0.9, np.float32), "rgb")
+    assert _part_of_the_joints(labels, 3, cues) == 2
+    in_the_gap = on_second - np.float32([60, 0])  # x 65-115: between the parts
+    assert _part_of_the_joints(labels, 3, Cues(cues.silhouette, in_the_gap, cues.joint_confidence, "rgb")) is None
+    unsure = Cues(cues.silhouette, on_second, np.full(18, 0.1, np.float32), "rgb")  # 1.8 joints' worth
+    assert _part_of_the_joints(labels, 3, unsure) is None
+    assert _same_foot(labels == 1, (labels == 1) | (labels == 2)) and not _same_foot(labels == 1, labels == 2)

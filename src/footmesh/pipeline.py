@@ -45,6 +45,9 @@ if TYPE_CHECKING:
 
 log = logging.getLogger("footmesh.pipeline")
 
+MIN_JOINTS_ON_PART = 3.0
+"""A silhouette part is the joints' foot when it holds at least this many joints (summed confidences)."""
+
 
 @dataclass(frozen=True)
 class CropBox:
@@ -159,7 +162,8 @@ def locate_feet(
     feet = []
     for region in regions:
         located = _located_in(rgb, depth, K, kind, config, stats[region, :4])
-        if located is not None:
+        # the second region's crop may show the first foot again (its joints, and so its silhouette, on it)
+        if located is not None and not any(_same_foot(located.mask, foot.mask) for foot in feet):
             feet.append(located)
     if not feet:
         raise refusals.foot_vanished()
@@ -191,14 +195,34 @@ def _located_in(rgb, depth, K, kind: str, config: MeasureConfig, box: np.ndarray
     n, labels, stats = _components(mask)
     if n <= 1:
         return None
-    # the part of the region this crop was cut for: the crop may hold more of the other foot than of this one
-    x, y, bw, bh = (int(v) for v in box)
-    inside = np.bincount(labels[max(y, 0) : y + bh, max(x, 0) : x + bw].ravel(), minlength=n)[1:]
-    keep = 1 + (np.argmax(inside) if inside.any() else np.argmax(stats[1:, cv2.CC_STAT_AREA]))
+    keep = _part_of_the_joints(labels, n, cues)
+    if keep is None:
+        # the part of the region this crop was cut for: the crop may hold more of the other foot than of this one
+        x, y, bw, bh = (int(v) for v in box)
+        inside = np.bincount(labels[max(y, 0) : y + bh, max(x, 0) : x + bw].ravel(), minlength=n)[1:]
+        keep = 1 + (np.argmax(inside) if inside.any() else np.argmax(stats[1:, cv2.CC_STAT_AREA]))
     if stats[keep, cv2.CC_STAT_AREA] < MIN_SILHOUETTE_PX:
         return None  # a few pixels: nothing the fit could take for a foot
     mask = labels == keep
     return Located(crop, replace(cues, silhouette=np.where(mask, cues.silhouette, 0.0).astype(np.float32)), mask)
+
+
+def _same_foot(a: np.ndarray, b: np.ndarray) -> bool:
+    """Two masks (H, W) bool of the same foot: most of the smaller lies on the larger."""
+    return bool((a & b).sum() > 0.5 * min(a.sum(), b.sum()))
+
+
+def _part_of_the_joints(labels: np.ndarray, n: int, cues: Cues) -> int | None:
+    """The label (1..n-1) of the silhouette part (labels (H, W)) on which the cues' joints lie, by their confidence;
+    None when no part holds MIN_JOINTS_ON_PART of them. Of two feet in a crop the network may place the joints on
+    one and the region the crop was cut for on the other: the fit needs a silhouette of the joints' foot."""
+    h, w = labels.shape
+    xy = np.round(cues.joints2d_px).astype(np.int64)
+    on = (xy[:, 0] >= 0) & (xy[:, 0] < w) & (xy[:, 1] >= 0) & (xy[:, 1] < h)
+    weight = np.bincount(labels[xy[on, 1], xy[on, 0]], weights=cues.joint_confidence[on], minlength=n)[1:]
+    if not weight.size or weight.max() < MIN_JOINTS_ON_PART:
+        return None
+    return 1 + int(np.argmax(weight))
 
 
 def decoder_mesh(
