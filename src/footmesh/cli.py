@@ -525,6 +525,11 @@ def _add_eval_commands(sub: argparse._SubParsersAction) -> None:
         help="also the whole pipeline's mesh (decoder start + fit) for this input (repeatable; ~1 s a photo)",
     )
     recon.add_argument("--pipeline-limit", type=int, help="the whole pipeline on the first N samples only")
+    recon.add_argument(
+        "--mirror-average",
+        action="store_true",
+        help="each network's mesh the average of its answers for the image and its mirror image",
+    )
     recon.add_argument("--json", help="also write the numbers to this JSON file")
     recon.set_defaults(func=_run_eval_recon)
 
@@ -597,6 +602,7 @@ def _run_eval_recon(args: argparse.Namespace) -> int:
             model_weights=args.model_weights,
             pipeline=args.pipeline,
             pipeline_limit=args.pipeline_limit,
+            mirror_average=args.mirror_average,
         )
     )
     return 0

@@ -55,3 +55,23 @@ def test_shipped_network_reconstructs_rendered_feet(kind, decoder, rendered):
     # the mesh's size follows the foot's
     extent = lambda v: (v - v.mean(1, keepdim=True)).norm(dim=-1).mean(1)  # noqa: E731
     assert torch.allclose(extent(out.vertices), extent(true_v), rtol=size_tolerance)
+
+
+@pytest.mark.parametrize("decoder", ["ism", "model"])
+def test_mirror_averaged_meshes_are_mirror_symmetric_and_closer_to_rendered_feet(decoder, rendered):
+    """The average of a network's answers for an image and its mirror image answers the mirror image with the
+    mirror of its mesh (x -> -x, the principal point mirrored too), and is no further from the true feet."""
+    model, config = network_for("rgbd", packaged_weights("rgbd", decoder))
+    rgb, depth, K = network_inputs(rendered, "rgbd", config.image_size)  # noqa: N806
+    K[:, 0, 2] += 12.0  # a principal point off the centre, as in the pipeline's crops
+    K_mirror = K.copy()  # noqa: N806
+    K_mirror[:, 0, 2] = config.image_size - 1 - K[:, 0, 2]
+    with torch.inference_mode():
+        plain = predict_batch(model, rgb, depth, K)
+        averaged = predict_batch(model, rgb, depth, K, mirror_average=True)
+        mirrored = predict_batch(model, rgb[:, :, ::-1].copy(), depth[:, :, ::-1].copy(), K_mirror, mirror_average=True)
+    flip = torch.tensor([-1.0, 1.0, 1.0])
+    torch.testing.assert_close(mirrored.vertices * flip, averaged.vertices, atol=0.05, rtol=0)
+    true_v = torch.from_numpy(np.stack([s["vertices"] for s in rendered]).astype(np.float32))
+    error = lambda out: float((out.vertices - true_v).norm(dim=-1).mean())  # noqa: E731
+    assert error(averaged) <= error(plain) + 0.5

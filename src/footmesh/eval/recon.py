@@ -19,6 +19,7 @@ training; their meshes (mm, camera frame) are compared with the synthetic ground
 
 from __future__ import annotations
 
+import functools
 import json
 import os
 import time
@@ -199,6 +200,7 @@ def evaluate(
     weights: str | os.PathLike | None = None,
     batch: int = 32,
     limit: int | None = None,
+    mirror_average: bool = False,
 ) -> ReconScores:
     """Scores of the ``input_kind`` network (shipped weights by default) on the samples of a test folder.
 
@@ -206,6 +208,8 @@ def evaluate(
         data: synthetic test folder (``footmesh synth``, another seed than training).
         weights: a ``weights.pt`` of ``footmesh train recon`` (ISM or EdgeConv) instead of the shipped one.
         limit: evaluate only the first ``limit`` samples.
+        mirror_average: each mesh the average of the network's answers for the image and its mirror image
+            (``recon.model.predict_batch``).
     """
     from footmesh.recon.model import predict_batch
     from footmesh.recon.weights import load_network, packaged_weights
@@ -230,7 +234,7 @@ def evaluate(
                 continue
         rgb, depth, K = network_inputs(samples, input_kind, size)  # noqa: N806
         t0 = time.perf_counter()
-        out = predict_batch(model, rgb, depth, K)
+        out = predict_batch(model, rgb, depth, K, mirror_average=mirror_average)
         scores.seconds += time.perf_counter() - t0
         true_v = torch.from_numpy(np.stack([s["vertices"] for s in samples]).astype(np.float32))
         true_j = torch.from_numpy(np.stack([s["joints3d"] for s in samples]).astype(np.float32))
@@ -244,7 +248,7 @@ def evaluate(
         if config.kind == "model":
             right = np.array([bool(s["side"]) for s in samples])
             scores.side_correct += (out.right.numpy() == right).tolist()
-            given = predict_batch(model, rgb, depth, K, right)
+            given = predict_batch(model, rgb, depth, K, right, mirror_average=mirror_average)
             scores.vertex_side_given += vertex_errors(given.vertices, true_v)["raw"].tolist()
             scores.joint_side_given += list(midfoot_aligned_error(joints_from_vertices(given.vertices), true_j).numpy())
             for name, errors in _parameter_parts(given.parameters, samples, true_v).items():
@@ -583,12 +587,15 @@ def run_eval(
     model_weights: str | os.PathLike | None = None,
     pipeline: list[str] | None = None,
     pipeline_limit: int | None = None,
+    mirror_average: bool = False,
 ) -> str:
     """Evaluate the networks for ``inputs`` (and the EdgeConv baseline and a model-based network if given) on the
     first ``limit`` samples (all by default) of each folder, and the whole pipeline for the inputs ``pipeline`` on
-    the first ``pipeline_limit`` (about a second a photo); return the tables and write the summaries as JSON."""
+    the first ``pipeline_limit`` (about a second a photo); return the tables and write the summaries as JSON.
+    ``mirror_average``: every network's meshes are the average of its answers for the image and its mirror."""
     weights = weights or {}
-    results = {k: evaluate(data, k, weights.get(k), limit=limit) for k in inputs}
+    scored = functools.partial(evaluate, limit=limit, mirror_average=mirror_average)
+    results = {k: scored(data, k, weights.get(k)) for k in inputs}
     for k, s in results.items():
         if s.kind != "ism":
             flag = "--edgeconv-weights" if s.kind == "edgeconv" else "--model-weights"
@@ -600,12 +607,12 @@ def run_eval(
         _, cfg, _ = read_weights(model_weights)
         if cfg.kind != "model":
             raise ValueError(f"{model_weights} holds a {cfg.kind} network, not a model-based one")
-        model = evaluate(data, cfg.input, model_weights, limit=limit)
+        model = scored(data, cfg.input, model_weights)
         if views_data:
-            model_views = evaluate(views_data, cfg.input, model_weights, limit=limit)
+            model_views = scored(views_data, cfg.input, model_weights)
     view_results = None
     if views_data:
-        view_results = {k: evaluate(views_data, k, weights.get(k), limit=limit) for k in inputs}
+        view_results = {k: scored(views_data, k, weights.get(k)) for k in inputs}
     edgeconv = None
     if edgeconv_weights:
         from footmesh.recon.weights import read_weights
@@ -616,6 +623,8 @@ def run_eval(
         edgeconv = evaluate(data, cfg.input, edgeconv_weights, limit=limit)
     whole = {k: evaluate_pipeline(data, k, pipeline_limit, progress=True) for k in pipeline or []}
     text = format_tables(results, view_results, edgeconv, model, model_views, whole)
+    if mirror_average:
+        text = "Networks' meshes: the average of each network's answers for the image and its mirror image.\n\n" + text
     if json_out:
         from footmesh.report import write_json
 

@@ -524,13 +524,27 @@ def predict_batch(
     depth_mm: np.ndarray | None,
     K: np.ndarray,
     right: np.ndarray | None = None,
+    mirror_average: bool = False,
 ) -> DecoderOutput | PointCloudOutput:
     """Reconstruct a batch already at the network's side: ``rgb`` (B, S, S, 3) uint8, ``depth_mm`` (B, S, S) mm,
     ``K`` (B, 3, 3) px of that side, ``right`` (B,) bool when the sides are known; the images the input kind does
-    not use may be None. Outputs in mm."""
+    not use may be None. Outputs in mm.
+
+    ``mirror_average``: the vertices are the average of the network's answer for each image and its answer for the
+    mirror image, mirrored back (x -> -x in the camera frame; the mirrored foot is built for the other side); the
+    other outputs are the image's own. Meshes only (not EdgeConv's points)."""
     cfg = model.config
     t_rgb = None if rgb is None else torch.from_numpy(np.ascontiguousarray(rgb)).permute(0, 3, 1, 2).float() / 255
     t_depth = None if depth_mm is None else torch.from_numpy(np.asarray(depth_mm, np.float32))[:, None]
     x, ref = recon_input(cfg.input, t_rgb, t_depth)
     sides = None if right is None else torch.as_tensor(np.asarray(right, dtype=bool))
-    return model(x, torch.as_tensor(np.asarray(K), dtype=torch.float32), ref, sides)
+    k = torch.as_tensor(np.asarray(K), dtype=torch.float32)
+    out = model(x, k, ref, sides)
+    if not mirror_average or isinstance(out, PointCloudOutput):
+        return out
+    k_mirror = k.clone()
+    k_mirror[:, 0, 2] = (x.shape[-1] - 1) - k[:, 0, 2]  # pixel centres: u -> S - 1 - u
+    own_sides = out.right if isinstance(out, ModelOutput) else sides
+    mirrored = model(x.flip(-1), k_mirror, ref, None if own_sides is None else ~own_sides)
+    vertices = 0.5 * (out.vertices + mirrored.vertices * torch.tensor([-1.0, 1.0, 1.0]))
+    return replace(out, vertices=vertices, centre=vertices.mean(dim=1))
