@@ -137,21 +137,18 @@ def locate_feet(
     rgb: np.ndarray | None, depth: np.ndarray | None, K: np.ndarray, kind: str, config: MeasureConfig
 ) -> list[Located]:
     """Find the feet, largest first (one, or two when a second region is at least ``config.second_foot_ratio``
-    of the first): cues on the whole photo (padded square), then again on a square crop around each region framed
-    like the training images (the foot's longer side ``config.crop_fill`` of the crop), the silhouette then cut to
-    where that crop's joints say the foot can be (``cues.trim``) and snapped to the photo's edges (or, with a depth
-    map alone, to those of the height above the floor; K (3, 3))."""
+    of the first): cues on the whole photo (padded square; with RGB-D, where its network finds no foot there, the
+    RGB network's), then again on a square crop around each region framed like the training images (the foot's
+    longer side ``config.crop_fill`` of the crop), the silhouette then cut to where that crop's joints say the foot
+    can be (``cues.trim``) and snapped to the photo's edges (or, with a depth map alone, to those of the height
+    above the floor; K (3, 3))."""
     ref = rgb if rgb is not None else depth
     h, w = ref.shape[:2]
-    mask = whole_photo_cues(kind, rgb, depth).silhouette >= 0.5
-    n, labels, stats = _components(mask)
-    areas = stats[1:, cv2.CC_STAT_AREA] if n > 1 else np.zeros(0)
+    stats, areas = _first_pass_regions(kind, rgb, depth)
     refusal = refusals.no_foot(float(areas.max()) if areas.size else 0.0, h * w, config)
     if refusal is not None and kind != "rgb" and rgb is not None:
         # a small, far foot: the whole photo's depth (relative to its median) barely shows it, its colours do
-        mask = whole_photo_cues("rgb", rgb, None).silhouette >= 0.5
-        n, labels, stats = _components(mask)
-        areas = stats[1:, cv2.CC_STAT_AREA] if n > 1 else np.zeros(0)
+        stats, areas = _first_pass_regions("rgb", rgb, None)
         refusal = refusals.no_foot(float(areas.max()) if areas.size else 0.0, h * w, config)
     if refusal is not None:
         raise refusal
@@ -170,9 +167,16 @@ def locate_feet(
     return feet
 
 
+def _first_pass_regions(kind: str, rgb: np.ndarray | None, depth: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+    """The foot regions of the whole photo: their ``cv2.connectedComponentsWithStats`` rows (N + 1, 5), the
+    background first, and their areas (N,) px."""
+    n, _, stats = _components(whole_photo_cues(kind, rgb, depth).silhouette >= 0.5)
+    return stats, stats[1:, cv2.CC_STAT_AREA] if n > 1 else np.zeros(0)
+
+
 def _located_in(rgb, depth, K, kind: str, config: MeasureConfig, box: np.ndarray) -> Located | None:
-    """The second pass on the crop around one region's box (x, y, w, h px): its cues and silhouette (the part of it
-    most inside the box), or None when the region vanishes on the closer look."""
+    """The second pass on the crop around one region's box (x, y, w, h px): its cues and silhouette (the part its
+    own joints lie on, else the part most inside the box), or None when the region vanishes on the closer look."""
     from footmesh.fit import MIN_SILHOUETTE_PX
 
     ref = rgb if rgb is not None else depth
