@@ -49,3 +49,22 @@ def test_one_rgbd_photo_end_to_end():
         assert abs(rec.length_err) < 30.0
     else:
         assert rec.error  # refused with a message, never a crash
+
+
+def test_a_fault_of_footmesh_is_counted_apart_from_the_refusals(monkeypatch):
+    """A refusal is the photo's; any other error is footmesh's own (the CLI calls it internal): the eval must not
+    hide it among the refusals."""
+    from footmesh.errors import Refusal
+    from footmesh.eval.measure import INTERNAL
+
+    outcomes = iter([Refusal("no foot found in the photo", "retake it"), ValueError("cues: 7 foot pixels")])
+
+    def failing(*args, **kwargs):
+        raise next(outcomes)
+
+    monkeypatch.setattr("footmesh.pipeline.measure_photo", failing)
+    res = evaluate_mode("rgbd", n=2, size=128, progress=False)
+    assert [r.error.startswith(INTERNAL) for r in res.records] == [False, True]
+    text = format_tables({"rgbd": res})
+    assert "rgbd: 1 photo(s) refused: no foot found in the photo (1)" in text
+    assert "rgbd: 1 internal errors: photo 1: internal error ValueError: cues: 7 foot pixels" in text

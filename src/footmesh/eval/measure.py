@@ -28,11 +28,14 @@ import torch
 
 from footmesh import references
 from footmesh.config import MeasureConfig
+from footmesh.errors import Refusal
 from footmesh.eval import thesis
 from footmesh.measure import FootLandmarks, measure_foot
 from footmesh.model.layer import default_model
 
 MODES = ("rgb_ref", "rgbd", "depth", "rgb", "rgbd_heic")
+INTERNAL = "internal error"
+"""How a photo that failed by footmesh's own fault (not a refusal) is marked in the records and the tables."""
 REFERENCES = references.NAMES
 EVAL_SEED = 4242
 """Seed of the test photos (training used seeds 1-3)."""
@@ -233,7 +236,9 @@ def evaluate_mode(
                 )
             except ValueError as exc:  # a refusal costs time too (issue 21 times every photo tried)
                 seconds = time.perf_counter() - t0
-                result.records.append(Record(i, view, False, str(exc), seconds=seconds, view_angle_deg=angle))
+                # any other ValueError is footmesh's own fault (the CLI reports it as internal): never a refusal
+                error = str(exc) if isinstance(exc, Refusal) else f"{INTERNAL} {type(exc).__name__}: {exc}"
+                result.records.append(Record(i, view, False, error, seconds=seconds, view_angle_deg=angle))
                 continue
             rec = Record(
                 i,
@@ -293,14 +298,21 @@ def format_tables(results: dict[str, ModeResult]) -> str:
     )
     for mode, res in results.items():
         failed = res.summary()["failed"]
-        if failed:
+        refused = {i: msg for i, msg in failed.items() if not msg.startswith(INTERNAL)}
+        if refused:
             reasons: dict[str, int] = {}
-            for msg in failed.values():
+            for msg in refused.values():
                 reason = re.sub(r"\d+", "N", msg.split(";")[0])[:90]  # "55 deg", "83 %": one reason, counted
                 reasons[reason] = reasons.get(reason, 0) + 1
             lines.append("")
             lines.append(
-                f"{mode}: {len(failed)} photo(s) refused: " + "; ".join(f"{k} ({v})" for k, v in reasons.items())
+                f"{mode}: {len(refused)} photo(s) refused: " + "; ".join(f"{k} ({v})" for k, v in reasons.items())
+            )
+        internal = {i: msg for i, msg in failed.items() if msg.startswith(INTERNAL)}
+        if internal:
+            lines.append("")
+            lines.append(
+                f"{mode}: {len(internal)} {INTERNAL}s: " + "; ".join(f"photo {i}: {m}" for i, m in internal.items())
             )
     by_view = {m: r for m, r in results.items() if any(rec.view for rec in r.records)}
     if by_view:
