@@ -604,3 +604,19 @@ def test_the_silhouette_kept_is_the_part_the_joints_lie_on():
     unsure = Cues(cues.silhouette, on_second, np.full(18, 0.1, np.float32), "rgb")  # 1.8 joints' worth
     assert _part_of_the_joints(labels, 3, unsure) is None
     assert _same_foot(labels == 1, (labels == 1) | (labels == 2)) and not _same_foot(labels == 1, labels == 2)
+
+
+def test_a_plain_photo_of_a_small_dark_foot_is_found_on_a_closer_look(tmp_path):
+    """An ood eval photo (seed 4242, RGB + reference photo 32): a dark-skinned foot under a leg stump on dark wood.
+    The RGB network's look at the whole photo (at its 128 px) finds 540 px of foot, under the 0.4 % of the photo a
+    foot must cover; at twice its side it finds 4,300 px, and the marker beside the foot gives the millimetres."""
+    from footmesh.eval.measure import REFERENCES, true_measurements
+    from footmesh.synth.render import Renderer
+    from footmesh.synth.scene import view_config
+
+    sample = Renderer(view_config("ood", size=640, reference=REFERENCES[32 % 3])).render(4242, 32)
+    paths = write_inputs(sample, tmp_path / "in", with_depth=False)
+    truth = true_measurements(sample["shape"], "right" if int(sample["side"]) else "left")["stick_length"]
+    result = measure_photo(paths["image"], tmp_path / "out", intrinsics=paths["intrinsics"], input="rgb")
+    assert result["scale_source"] == REFERENCES[32 % 3]
+    assert abs(result["measurements"]["stick_length"]["value_mm"] - truth) < 6.0

@@ -28,6 +28,7 @@ from footmesh.cues.floor import depth_floor
 from footmesh.cues.predict import average_cues, predict_cues
 from footmesh.cues.refine import clear_paper, height_image, refine_silhouette
 from footmesh.cues.trim import trim_silhouette
+from footmesh.cues.weights import network_for
 from footmesh.errors import InputError, Refusal
 from footmesh.geometry.camera import Camera, rescale_pixels
 from footmesh.load import Photo, load_photo
@@ -45,6 +46,8 @@ if TYPE_CHECKING:
 
 log = logging.getLogger("footmesh.pipeline")
 
+FIRST_LOOK_ZOOM = 2
+"""The last look at a whole photo in which no foot was found: the network at this many times its own image side."""
 MIN_JOINTS_ON_PART = 3.0
 """A silhouette part is the joints' foot when it holds at least this many joints (summed confidences)."""
 
@@ -144,13 +147,12 @@ def locate_feet(
     above the floor; K (3, 3))."""
     ref = rgb if rgb is not None else depth
     h, w = ref.shape[:2]
-    stats, areas = _first_pass_regions(kind, rgb, depth)
-    refusal = refusals.no_foot(float(areas.max()) if areas.size else 0.0, h * w, config)
-    if refusal is not None and kind != "rgb" and rgb is not None:
-        # a small, far foot: the whole photo's depth (relative to its median) barely shows it, its colours do
-        stats, areas = _first_pass_regions("rgb", rgb, None)
+    for look, zoom in _first_looks(kind, rgb is not None):
+        stats, areas = _first_pass_regions(look, rgb, depth, zoom)
         refusal = refusals.no_foot(float(areas.max()) if areas.size else 0.0, h * w, config)
-    if refusal is not None:
+        if refusal is None:
+            break
+    else:
         raise refusal
     order = np.argsort(areas)[::-1]
     regions = [1 + order[0]]
@@ -167,10 +169,25 @@ def locate_feet(
     return feet
 
 
-def _first_pass_regions(kind: str, rgb: np.ndarray | None, depth: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
-    """The foot regions of the whole photo: their ``cv2.connectedComponentsWithStats`` rows (N + 1, 5), the
-    background first, and their areas (N,) px."""
-    n, _, stats = _components(whole_photo_cues(kind, rgb, depth).silhouette >= 0.5)
+def _first_looks(kind: str, with_rgb: bool) -> list[tuple[str, int]]:
+    """The looks at the whole photo, in turn until one finds a foot region: (network, zoom of its own image side).
+    A small, far foot: the whole photo's depth (relative to its median) barely shows it where its colours do, and
+    at the networks' 128 px a foot 60 px long in a 640-px photo is 12 px (the ood renders: 6 of 60 RGB-D photos
+    and 3 of 60 RGB ones refused as *no foot* with a foot in view)."""
+    looks = [(kind, 1)]
+    if kind != "rgb" and with_rgb:
+        looks.append(("rgb", 1))
+    return [*looks, ("rgb" if with_rgb else kind, FIRST_LOOK_ZOOM)]
+
+
+def _first_pass_regions(
+    kind: str, rgb: np.ndarray | None, depth: np.ndarray | None, zoom: int = 1
+) -> tuple[np.ndarray, np.ndarray]:
+    """The foot regions of the whole photo as the ``kind`` network sees it at ``zoom`` times its own image side:
+    their ``cv2.connectedComponentsWithStats`` rows (N + 1, 5), the background first, and their areas (N,) px."""
+    side = network_for(kind)[1].image_size * zoom
+    cues = whole_photo_cues(kind, rgb if kind != "depth" else None, depth if kind != "rgb" else None, image_size=side)
+    n, _, stats = _components(cues.silhouette >= 0.5)
     return stats, stats[1:, cv2.CC_STAT_AREA] if n > 1 else np.zeros(0)
 
 
