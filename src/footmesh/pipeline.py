@@ -27,7 +27,7 @@ from footmesh.cues import Cues
 from footmesh.cues.floor import depth_floor
 from footmesh.cues.predict import average_cues, predict_cues
 from footmesh.cues.refine import clear_paper, height_image, refine_silhouette
-from footmesh.cues.trim import trim_silhouette
+from footmesh.cues.trim import foot_axes, trim_silhouette
 from footmesh.cues.weights import network_for
 from footmesh.errors import InputError, Refusal
 from footmesh.geometry.camera import Camera, rescale_pixels
@@ -48,6 +48,8 @@ log = logging.getLogger("footmesh.pipeline")
 
 FIRST_LOOK_ZOOM = 2
 """The last look at a whole photo in which no foot was found: the network at this many times its own image side."""
+SAME_FOOT_JOINTS = 0.2
+"""Two feet whose joints lie closer than this fraction of the foot's image size S (``cues.trim``) are one foot."""
 MIN_JOINTS_ON_PART = 3.0
 """A silhouette part is the joints' foot when it holds at least this many joints (summed confidences)."""
 
@@ -162,7 +164,7 @@ def locate_feet(
     for region in regions:
         located = _located_in(rgb, depth, K, kind, config, stats[region, :4])
         # the second region's crop may show the first foot again (its joints, and so its silhouette, on it)
-        if located is not None and not any(_same_foot(located.mask, foot.mask) for foot in feet):
+        if located is not None and not any(_same_foot(located.cues, foot.cues) for foot in feet):
             feet.append(located)
     if not feet:
         raise refusals.foot_vanished()
@@ -228,9 +230,14 @@ def _located_in(rgb, depth, K, kind: str, config: MeasureConfig, box: np.ndarray
     return Located(crop, replace(cues, silhouette=np.where(mask, cues.silhouette, 0.0).astype(np.float32)), mask)
 
 
-def _same_foot(a: np.ndarray, b: np.ndarray) -> bool:
-    """Two masks (H, W) bool of the same foot: most of the smaller lies on the larger."""
-    return bool((a & b).sum() > 0.5 * min(a.sum(), b.sum()))
+def _same_foot(a: Cues, b: Cues) -> bool:
+    """Two looks found the same foot: their joints lie within ``SAME_FOOT_JOINTS`` of its image size of each other
+    (median over the joints). Not the masks: a mask that takes in both feet (through the legs) holds the other
+    foot's mask too."""
+    axes = foot_axes(a.joints2d_px)
+    if axes is None:
+        return False
+    return bool(np.median(np.linalg.norm(a.joints2d_px - b.joints2d_px, axis=1)) < SAME_FOOT_JOINTS * axes.size)
 
 
 def _part_of_the_joints(labels: np.ndarray, n: int, cues: Cues) -> int | None:
