@@ -251,6 +251,14 @@ class MeasureConfig:
     """A foot must cover at least this fraction of the photo."""
     second_foot_ratio: float = 0.35
     """A second region at least this large relative to the foot means two feet."""
+    first_look_zoom: int = 2
+    """Where no look at the whole photo finds a foot region, a last look runs the network at this many times its
+    own image side (a small, far foot: at 128 px a foot 60 px long in a 640-px photo is 12 px)."""
+    same_foot_joints: float = 0.2
+    """Two located feet whose joints lie closer than this fraction of the foot's image size S (median over the
+    joints; ``cues.trim``) are one foot found twice."""
+    min_joints_on_part: float = 3.0
+    """A silhouette part is the crop's joints' foot when it holds at least this many of them (summed confidences)."""
     max_border_pixels: int = 12
     """More silhouette pixels than this on the photo's edge near the foot's joints: the foot is cut off."""
     foot_zone_margin: float = 0.15

@@ -46,13 +46,6 @@ if TYPE_CHECKING:
 
 log = logging.getLogger("footmesh.pipeline")
 
-FIRST_LOOK_ZOOM = 2
-"""The last look at a whole photo in which no foot was found: the network at this many times its own image side."""
-SAME_FOOT_JOINTS = 0.2
-"""Two feet whose joints lie closer than this fraction of the foot's image size S (``cues.trim``) are one foot."""
-MIN_JOINTS_ON_PART = 3.0
-"""A silhouette part is the joints' foot when it holds at least this many joints (summed confidences)."""
-
 
 @dataclass(frozen=True)
 class CropBox:
@@ -149,7 +142,7 @@ def locate_feet(
     above the floor; K (3, 3))."""
     ref = rgb if rgb is not None else depth
     h, w = ref.shape[:2]
-    for look, zoom in _first_looks(kind, rgb is not None):
+    for look, zoom in _first_looks(kind, rgb is not None, config.first_look_zoom):
         stats, areas = _first_pass_regions(look, rgb, depth, zoom)
         refusal = refusals.no_foot(float(areas.max()) if areas.size else 0.0, h * w, config)
         if refusal is None:
@@ -164,22 +157,25 @@ def locate_feet(
     for region in regions:
         located = _located_in(rgb, depth, K, kind, config, stats[region, :4])
         # the second region's crop may show the first foot again (its joints, and so its silhouette, on it)
-        if located is not None and not any(_same_foot(located.cues, foot.cues) for foot in feet):
+        if located is not None and not any(
+            _same_foot(located.cues, foot.cues, config.same_foot_joints) for foot in feet
+        ):
             feet.append(located)
     if not feet:
         raise refusals.foot_vanished()
     return feet
 
 
-def _first_looks(kind: str, with_rgb: bool) -> list[tuple[str, int]]:
-    """The looks at the whole photo, in turn until one finds a foot region: (network, zoom of its own image side).
+def _first_looks(kind: str, with_rgb: bool, zoom: int) -> list[tuple[str, int]]:
+    """The looks at the whole photo, in turn until one finds a foot region: (network, zoom of its own image side;
+    the last one at ``zoom``, ``MeasureConfig.first_look_zoom``).
     A small, far foot: the whole photo's depth (relative to its median) barely shows it where its colours do, and
     at the networks' 128 px a foot 60 px long in a 640-px photo is 12 px (ood renders, seed 4242: 6 of 60 RGB-D
     photos refused as *no foot*, five with the foot in view, and 3 of 60 RGB ones, one in plain view)."""
     looks = [(kind, 1)]
     if kind != "rgb" and with_rgb:
         looks.append(("rgb", 1))
-    return [*looks, ("rgb" if with_rgb else kind, FIRST_LOOK_ZOOM)]
+    return [*looks, ("rgb" if with_rgb else kind, zoom)]
 
 
 def _first_pass_regions(
@@ -187,8 +183,7 @@ def _first_pass_regions(
 ) -> tuple[np.ndarray, np.ndarray]:
     """The foot regions of the whole photo as the ``kind`` network sees it at ``zoom`` times its own image side:
     their ``cv2.connectedComponentsWithStats`` rows (N + 1, 5), the background first, and their areas (N,) px."""
-    side = network_for(kind)[1].image_size * zoom
-    cues = whole_photo_cues(kind, rgb if kind != "depth" else None, depth if kind != "rgb" else None, image_size=side)
+    cues = whole_photo_cues(kind, rgb, depth, image_size=network_for(kind)[1].image_size * zoom)
     n, _, stats = _components(cues.silhouette >= 0.5)
     return stats, stats[1:, cv2.CC_STAT_AREA] if n > 1 else np.zeros(0)
 
@@ -218,7 +213,7 @@ def _located_in(rgb, depth, K, kind: str, config: MeasureConfig, box: np.ndarray
     n, labels, stats = _components(mask)
     if n <= 1:
         return None
-    keep = _part_of_the_joints(labels, n, cues)
+    keep = _part_of_the_joints(labels, n, cues, config.min_joints_on_part)
     if keep is None:
         # the part of the region this crop was cut for: the crop may hold more of the other foot than of this one
         x, y, bw, bh = (int(v) for v in box)
@@ -230,25 +225,27 @@ def _located_in(rgb, depth, K, kind: str, config: MeasureConfig, box: np.ndarray
     return Located(crop, replace(cues, silhouette=np.where(mask, cues.silhouette, 0.0).astype(np.float32)), mask)
 
 
-def _same_foot(a: Cues, b: Cues) -> bool:
-    """Two looks found the same foot: their joints lie within ``SAME_FOOT_JOINTS`` of its image size of each other
+def _same_foot(a: Cues, b: Cues, within: float = MeasureConfig.same_foot_joints) -> bool:
+    """Two looks found the same foot: their joints lie within ``within`` of its image size S of each other
     (median over the joints). Not the masks: a mask that takes in both feet (through the legs) holds the other
     foot's mask too."""
     axes = foot_axes(a.joints2d_px)
     if axes is None:
         return False
-    return bool(np.median(np.linalg.norm(a.joints2d_px - b.joints2d_px, axis=1)) < SAME_FOOT_JOINTS * axes.size)
+    return bool(np.median(np.linalg.norm(a.joints2d_px - b.joints2d_px, axis=1)) < within * axes.size)
 
 
-def _part_of_the_joints(labels: np.ndarray, n: int, cues: Cues) -> int | None:
+def _part_of_the_joints(
+    labels: np.ndarray, n: int, cues: Cues, least: float = MeasureConfig.min_joints_on_part
+) -> int | None:
     """The label (1..n-1) of the silhouette part (labels (H, W)) on which the cues' joints lie, by their confidence;
-    None when no part holds MIN_JOINTS_ON_PART of them. Of two feet in a crop the network may place the joints on
+    None when no part holds ``least`` of them. Of two feet in a crop the network may place the joints on
     one and the region the crop was cut for on the other: the fit needs a silhouette of the joints' foot."""
     h, w = labels.shape
     xy = np.round(cues.joints2d_px).astype(np.int64)
     on = (xy[:, 0] >= 0) & (xy[:, 0] < w) & (xy[:, 1] >= 0) & (xy[:, 1] < h)
     weight = np.bincount(labels[xy[on, 1], xy[on, 0]], weights=cues.joint_confidence[on], minlength=n)[1:]
-    if not weight.size or weight.max() < MIN_JOINTS_ON_PART:
+    if not weight.size or weight.max() < least:
         return None
     return 1 + int(np.argmax(weight))
 
