@@ -694,6 +694,7 @@ def _measure_located(
     timings["measure_s"] = time.perf_counter() - t
 
     joints2d_photo = rescale_pixels(located.cues.joints2d_px, to_photo)
+    located = replace(located, mask=_measured_foot_mask(located.mask, fit, K, config))
     overlay = draw_overlay(rgb, located, fit, K, reference)
     result = MeasureResult(
         version=__version__,
@@ -734,7 +735,7 @@ def _measure_located(
             "mask_png": "mask.png",
         },
     )
-    # the foot's silhouette in photo pixels: nearest-neighbour, so it stays the network's 0/1 decision
+    # the measured foot in photo pixels: nearest-neighbour, so it stays a 0/1 decision
     mask = cv2.resize(located.mask.astype(np.uint8) * 255, photo.rgb.shape[1::-1], interpolation=cv2.INTER_NEAREST)
     files = _Files(fit.vertices_cam, canonical, model.faces(fit.side).numpy(), faces, overlay, mask)
     return result, files, located, fit, K
@@ -807,6 +808,21 @@ def _reference_dict(reference, to_photo: float) -> dict:
         "size_mm": list(reference.size_mm),
         "scale_rel_sd": float(reference.scale_rel_sd),
     }
+
+
+def _measured_foot_mask(mask: np.ndarray, fit, K: np.ndarray, config: MeasureConfig) -> np.ndarray:
+    """(H, W) bool: the silhouette ``mask``'s pixels within ``config.measured_mask_margin`` of the fitted foot's image
+    below the ankle (``fit.foot_image``): the foot measured, without the shin the network also took for foot; the
+    whole silhouette where the fitted foot has no image."""
+    from footmesh.fit import foot_image
+
+    covered = foot_image(fit.vertices_cam, fit.side, K, mask.shape)
+    if covered is None or not covered.any():
+        return mask
+    rows, cols = np.nonzero(covered)
+    reach = max(int(round(config.measured_mask_margin * max(np.ptp(rows), np.ptp(cols)))), 1)
+    kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * reach + 1, 2 * reach + 1))
+    return mask & (cv2.dilate(covered.astype(np.uint8), kernel) > 0)
 
 
 def draw_overlay(rgb: np.ndarray, located: Located, fit, K: np.ndarray, reference) -> np.ndarray:

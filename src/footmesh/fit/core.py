@@ -664,6 +664,24 @@ def projected_mask(
     return raster > 0
 
 
+def foot_image(
+    vertices_cam: np.ndarray,
+    side: str,
+    K: np.ndarray,
+    size: tuple[int, int],
+    model: FootModel | None = None,
+    max_height_mm: float | None = None,
+) -> np.ndarray | None:
+    """(H, W) bool: the pixels that the fitted ``side`` foot (its vertices (V, 3) mm, camera frame) covers below
+    the ankle (rest height under ``max_height_mm``, default ``FitConfig.contour_max_height_mm``): the foot without
+    its leg cap; None when a vertex is behind the camera."""
+    model = model if model is not None else default_model()
+    max_height_mm = FitConfig.contour_max_height_mm if max_height_mm is None else max_height_mm
+    low = model.mean_vertices[:, 2].detach().numpy() < max_height_mm
+    faces = model.faces(side).numpy()
+    return projected_mask(vertices_cam, faces[low[faces].all(axis=1)], K, size)
+
+
 def foot_shown(
     vertices_cam: np.ndarray,
     side: str,
@@ -675,11 +693,7 @@ def foot_shown(
     """Fraction of the fitted ``side`` foot's image (its vertices (V, 3) mm, camera frame) below the ankle (rest
     height under ``max_height_mm``, default ``FitConfig.contour_max_height_mm``) that the photo's silhouette
     (H, W) bool shows: the rest is hidden (by the leg, a trouser, the image's edge)."""
-    model = model if model is not None else default_model()
-    max_height_mm = FitConfig.contour_max_height_mm if max_height_mm is None else max_height_mm
-    low = model.mean_vertices[:, 2].detach().numpy() < max_height_mm
-    faces = model.faces(side).numpy()
-    covered = projected_mask(vertices_cam, faces[low[faces].all(axis=1)], K, mask.shape)
+    covered = foot_image(vertices_cam, side, K, mask.shape, model, max_height_mm)
     if covered is None or not covered.any():
         return 0.0
     return float((covered & mask).sum() / covered.sum())
