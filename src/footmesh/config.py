@@ -188,6 +188,10 @@ def _check_type(value: Any, current: Any, cls, name: str, where: str) -> Any:
     optional = current is None or "None" in str(hint)
     if value is None and optional:
         return None
+    if "tuple[str" in str(hint):
+        if not isinstance(value, (list, tuple)) or not all(isinstance(v, str) for v in value):
+            raise ValueError(f"{where} must be a list of strings, got {value!r}")
+        return tuple(value)
     if isinstance(current, tuple) or "tuple" in str(hint):
         if not isinstance(value, (list, tuple)) or not all(
             isinstance(v, (int, float)) and not isinstance(v, bool) for v in value

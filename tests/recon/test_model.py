@@ -167,6 +167,55 @@ def test_anchored_centroid_reads_its_depth_off_the_depth_map(kind):
     assert ReconNet(replace(TINY, input="rgb")).surface_map is None
 
 
+def test_a_centre_pixel_head_starts_as_the_network_without_it_and_moves_the_centroid_on_its_ray():
+    """Given the weights of a network without it, a network with ``centre_refine`` answers the same (its last layer
+    starts at zero); once it has learnt, the centroid moves to the pixel its offsets and heat map point at, the
+    depth still read off the depth map."""
+    torch.manual_seed(4)
+    plain = ReconNet(TINY).eval()
+    refined = ReconNet(replace(TINY, centre_refine=True)).eval()
+    missing, unexpected = refined.load_state_dict(plain.state_dict(), strict=False)
+    assert missing and all(k.startswith("centre_refiner.") for k in missing) and not unexpected
+    rgb, depth = scene()
+    x, ref = recon_input("rgbd", rgb, depth)
+    K = camera(b=2)  # noqa: N806
+    with torch.no_grad():
+        before = plain(x, K, ref)
+        same = refined(x, K, ref)
+        assert torch.allclose(same.vertices, before.vertices, atol=1e-4)
+        refined.centre_refiner.out.bias.copy_(torch.tensor([0.0, 1.5, -1.0]))  # every cell 1.5 right, 1 up
+        moved = refined(x, K, ref)
+    pixel = lambda c: (c @ K[0].T)[:, :2] / c[:, 2:]  # noqa: E731
+    shift = pixel(moved.centre) - pixel(before.centre)
+    stride = SIZE / (SIZE // 8)
+    assert torch.allclose(shift, torch.tensor([1.5 * stride, -stride]).expand(2, 2), atol=1e-3), shift
+    assert torch.allclose(moved.centre[:, 2], before.centre[:, 2], rtol=1e-5)
+    assert ReconNet(replace(TINY, centre_head="global", centre_refine=True)).centre_refiner is None
+
+
+def test_train_only_freezes_the_rest_and_its_batch_norm_statistics():
+    """With ``train_only``, a training step changes the named submodule alone: the rest gets no gradient and its
+    batch-norm statistics stay as loaded, although the network is in training mode."""
+    torch.manual_seed(6)
+    net = ReconNet(replace(TINY, centre_refine=True))
+    net.train_only(("centre_refiner",))
+    net.train()
+    assert net.centre_refiner.training and not net.encoder.training and net.training
+    state = {k: v.clone() for k, v in net.state_dict().items()}
+    with torch.no_grad():
+        net.centre_refiner.out.weight.normal_(0.0, 0.1)  # past the zero start, where gradients reach the map
+    rgb, depth = scene()
+    x, ref = recon_input("rgbd", rgb, depth)
+    optimiser = torch.optim.SGD([p for p in net.parameters() if p.requires_grad], lr=0.1)
+    (net(x, camera(b=2), ref).vertices - torch.tensor([5.0, -3.0, 420.0])).abs().mean().backward()
+    optimiser.step()
+    changed = {k for k, v in net.state_dict().items() if not torch.equal(v, state[k])}
+    assert changed and all(k.startswith("centre_refiner.") for k in changed), changed
+    assert all(p.grad is None for n, p in net.named_parameters() if not n.startswith("centre_refiner."))
+    with pytest.raises(AttributeError):
+        ReconNet(TINY).train_only(("centre_refiner",))  # a network without one
+
+
 def test_rgb_focal_length_sets_the_depth():
     """RGB: the same image taken with a k times longer lens shows the same objects k times farther away."""
     torch.manual_seed(1)

@@ -324,6 +324,9 @@ def test_config_from_partial_dict_keeps_this_modules_defaults():
     with pytest.raises(ValueError, match="chamfer"):
         ReconTrainingConfig.from_dict({"model": {"kind": "edgeconv"}})
     assert json.loads(json.dumps(ReconTrainingConfig().to_dict()))["model"]["loss"] == "thesis"
+    assert ReconTrainingConfig.from_dict({"train_only": ["centre_refiner"]}).train_only == ("centre_refiner",)
+    with pytest.raises(ValueError, match="list of strings"):
+        ReconTrainingConfig.from_dict({"train_only": [1]})
 
 
 # --- the command line (footmesh.cli; skipped until the subcommand is part of cli.py) ------------------------------

@@ -118,6 +118,10 @@ class ReconTrainingConfig:
     decoder (its coordinate heads still start at zero), copied after ``train.init_from`` (e.g. a model-based run
     trained without the residual)."""
 
+    train_only: tuple[str, ...] = ()
+    """Submodules that train (e.g. ``["centre_refiner"]``), the rest frozen as ``train.init_from`` left them (no
+    gradient, batch-norm statistics kept: ``ReconNet.train_only``); empty: the whole network."""
+
     def __post_init__(self) -> None:
         if self.chamfer_points < 1:
             raise ValueError(f"chamfer_points must be at least 1, got {self.chamfer_points}")
@@ -546,6 +550,8 @@ def train_recon(
         log.info("residual decoder: %d tensors from %s", copy_matching(model, layers, source), config.residual_from)
     # decided from the configuration, not from ``fresh``: a resumed run must rebuild the same parameter groups
     model.initialised_from_network = bool(config.train.init_from)
+    if config.train_only:
+        model.train_only(config.train_only)
     task = ReconTask(train, val, config, None if cfg.kind == "edgeconv" else model.faces)
     data_info = {"folder": str(Path(data)), "samples": len(arrays), "train": len(train), "val": len(val)}
     meta = Path(data) / "meta.json"
