@@ -429,6 +429,7 @@ class ReconNet(nn.Module):
         self.train(self.training)
 
     def train(self, mode: bool = True) -> ReconNet:
+        """``nn.Module.train``, the submodules frozen by ``train_only`` kept in evaluation mode."""
         super().train(mode)
         if self.trained_submodules:
             for name, module in self.named_modules():
