@@ -422,7 +422,8 @@ class ReconNet(nn.Module):
         """Train only the submodules ``names``: the other parameters get no gradient, and the other modules stay
         in evaluation mode (batch-norm statistics as loaded) when the network is put in training mode."""
         for name in names:
-            self.get_submodule(name)  # an unknown or absent submodule is an error
+            if not _has_parameters(self, name):
+                raise ValueError(f"train_only: this network has no submodule {name!r} with parameters")
         self.trained_submodules = tuple(names)
         for name, parameter in self.named_parameters():
             parameter.requires_grad_(_within(name, names))
