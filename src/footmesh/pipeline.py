@@ -28,7 +28,7 @@ from footmesh.cues.floor import depth_floor
 from footmesh.cues.predict import average_cues, predict_cues
 from footmesh.cues.refine import clear_paper, height_image, refine_silhouette
 from footmesh.cues.trim import foot_axes, trim_silhouette
-from footmesh.cues.weights import network_for
+from footmesh.cues.weights import network_for as cues_network
 from footmesh.errors import InputError, Refusal
 from footmesh.geometry.camera import Camera, rescale_pixels
 from footmesh.load import Photo, load_photo
@@ -183,7 +183,7 @@ def _first_pass_regions(
 ) -> tuple[np.ndarray, np.ndarray]:
     """The foot regions of the whole photo as the ``kind`` network sees it at ``zoom`` times its own image side:
     their ``cv2.connectedComponentsWithStats`` rows (N + 1, 5), the background first, and their areas (N,) px."""
-    cues = whole_photo_cues(kind, rgb, depth, image_size=network_for(kind)[1].image_size * zoom)
+    cues = whole_photo_cues(kind, rgb, depth, image_size=cues_network(kind)[1].image_size * zoom)
     n, _, stats = _components(cues.silhouette >= 0.5)
     return stats, stats[1:, cv2.CC_STAT_AREA] if n > 1 else np.zeros(0)
 
@@ -265,9 +265,10 @@ def decoder_mesh(
     known (not ``auto``)."""
     from footmesh.cues.predict import resize_inputs
     from footmesh.recon.model import predict_batch
-    from footmesh.recon.weights import network_for, packaged_weights
+    from footmesh.recon.weights import network_for as decoder_network
+    from footmesh.recon.weights import packaged_weights
 
-    net, cfg = network_for(kind, packaged_weights(kind, decoder))
+    net, cfg = decoder_network(kind, packaged_weights(kind, decoder))
     crop = located.crop
     crop_rgb = None if kind == "depth" else crop.cut(rgb)
     crop_depth = None if kind == "rgb" else crop.cut(depth, fill=0.0)
@@ -304,7 +305,6 @@ def warm_up(config: MeasureConfig | None = None) -> None:
     memory instead of loading them. Loading runs on one torch thread: OpenMP's thread team does not survive a
     fork, and a parallel region here (any tensor copy large enough) left every job forked after it hung at its
     first one."""
-    from footmesh.cues.weights import network_for as cues_network
     from footmesh.recon.weights import network_for as decoder_network
     from footmesh.recon.weights import packaged_weights
 
