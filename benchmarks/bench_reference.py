@@ -1,16 +1,20 @@
 """Reference-object detection on synthetic phone photos: how often each object is found, and how good its scale is.
 
 Photos are rendered like ``footmesh eval measure``'s ``rgb_ref`` mode (same seed, same cycle A4 sheet, card,
-marker). Each is given to ``detect_reference`` with the true foot silhouette (dilated, as the pipeline does with
-the predicted one) as the excluded region. The scale error is that of the camera-to-floor distance along the
-optical axis through the object, the error every millimetre measured through the floor plane inherits.
+marker), from random views (``random``: any side and height) and from each named view set of ``--views`` (``eval
+measure --views``: ``front``, the way most real photos of a foot on a sheet are taken; ``ood``, unlike the
+training renders). Each is given to ``detect_reference`` with the true foot silhouette (dilated, as the
+pipeline does with the predicted one) as the excluded region. The scale error is that of the camera-to-floor
+distance along the optical axis through the object, the error every millimetre measured through the floor plane
+inherits.
 
 Real photos beside them: the seven phone photos of a foot on an A4 sheet in ``../shared/real/a4/photos``, against
 their corners marked by hand (``tests/data/real_a4_corners.json``), searched the way ``footmesh measure`` does
 (``footmesh.eval.real_reference``): found, the corners' error (px at 1600 on the photo's longer side) and the
 error of the camera-to-sheet distance against the marked corners' pose.
 
-Run: ``python benchmarks/bench_reference.py [--n 60] [--size 640] [--seed 4242] [--real DIR]``.
+Run: ``python benchmarks/bench_reference.py [--n 60] [--size 640] [--seed 4242] [--views random front ood]
+[--real DIR]``.
 """
 
 from __future__ import annotations
@@ -36,15 +40,21 @@ def floor_distance_mm(normal: np.ndarray, point: np.ndarray) -> float:
     return float(abs(normal @ point) / np.linalg.norm(normal))
 
 
-def run(n: int, size: int, seed: int) -> dict[str, list[dict]]:
-    """One record per photo and kind: found, relative scale error, visible corners, seconds."""
+def run(n: int, size: int, seed: int, views: str = "random") -> dict[str, list[dict]]:
+    """One record per photo and kind: found, relative scale error, visible corners, seconds; ``views``: "random" or
+    a name of ``synth.scene.VIEW_PRESETS``."""
     from footmesh.cues.reference import detect_reference
     from footmesh.eval.measure import MODES
     from footmesh.synth.render import Renderer
-    from footmesh.synth.scene import SynthConfig
+    from footmesh.synth.scene import SynthConfig, view_config
+
+    def config(kind: str) -> SynthConfig:
+        if views == "random":
+            return SynthConfig(size=size, reference=kind, frame_reference=True)
+        return view_config(views, size=size, reference=kind)
 
     records: dict[str, list[dict]] = {k: [] for k in KINDS}
-    renderers = {k: Renderer(SynthConfig(size=size, reference=k, frame_reference=True)) for k in KINDS}
+    renderers = {k: Renderer(config(k)) for k in KINDS}
     for i in range(n):
         kind = KINDS[i % 3]
         sample = renderers[kind].render(seed + MODES.index("rgb_ref"), i)
@@ -68,19 +78,21 @@ def run(n: int, size: int, seed: int) -> dict[str, list[dict]]:
     return records
 
 
-def format_table(records: dict[str, list[dict]]) -> str:
-    """Markdown table: per kind, found / photos, found among photos with all 4 corners visible, scale error."""
+def format_table(records_by_views: dict[str, dict[str, list[dict]]]) -> str:
+    """Markdown table: per view set and kind, found / photos, found among photos with all 4 corners visible,
+    scale error."""
     lines = [
-        "| object | photos | found | found, 4 corners visible | wrong kind | scale error % median (max) | ms |",
-        "|---|---:|---:|---:|---:|---:|---:|",
+        "| views | object | photos | found | found, 4 corners visible | wrong kind | scale error % median (max) | ms |",
+        "|---|---|---:|---:|---:|---:|---:|---:|",
     ]
-    for kind, recs in records.items():
+    rows = [(views, kind, recs) for views, records in records_by_views.items() for kind, recs in records.items()]
+    for views, kind, recs in rows:
         whole = [r for r in recs if r["corners_visible"] == 4]
         errors = [abs(r["rel_error"]) * 100 for r in recs if r["found"]]
         err = f"{statistics.median(errors):.2f} ({max(errors):.2f})" if errors else "-"
         ms = 1000 * statistics.median(r["seconds"] for r in recs)
         lines.append(
-            f"| {kind} | {len(recs)} | {sum(r['found'] for r in recs)} | "
+            f"| {views} | {kind} | {len(recs)} | {sum(r['found'] for r in recs)} | "
             f"{sum(r['found'] for r in whole)} / {len(whole)} | {sum(r['wrong_kind'] for r in recs)} | {err} | "
             f"{ms:.0f} |"
         )
@@ -122,12 +134,18 @@ def main() -> None:
     parser.add_argument("--n", type=int, default=60, help="photos (cycling A4, card, marker)")
     parser.add_argument("--size", type=int, default=640, help="photo side, px")
     parser.add_argument("--seed", type=int, default=4242, help="seed of the photos (eval measure's default)")
+    parser.add_argument(
+        "--views",
+        nargs="+",
+        default=["random", "front", "ood"],
+        help="view sets: random and names of eval measure's --views (guided, front, ood, ...)",
+    )
     parser.add_argument("--real", type=Path, default=REAL_PHOTOS, help="folder of the real A4 photos")
     parser.add_argument(
         "--no-reference", type=Path, default=NO_REFERENCE_PHOTOS, help="folder of real photos without any reference"
     )
     args = parser.parse_args()
-    print(format_table(run(args.n, args.size, args.seed)))
+    print(format_table({views: run(args.n, args.size, args.seed, views) for views in args.views}))
     print()
     if args.real.is_dir():
         print(format_real_table(args.real))

@@ -14,7 +14,7 @@ from footmesh import references
 from footmesh.cues.reference import SIZES_MM, ReferenceObject, detect_reference, search_reference
 from footmesh.cues.reference import quads as quad_tests
 from footmesh.synth.render import Renderer
-from footmesh.synth.scene import REFERENCE_KINDS, SynthConfig, guided_view_config
+from footmesh.synth.scene import REFERENCE_KINDS, SynthConfig, guided_view_config, view_config
 
 SIZE = 480
 SEED = 31
@@ -145,6 +145,23 @@ def test_a_card_in_line_with_a_plank_seam():
     """A guided photo (seed 999, 4): a seam of the planks runs on from a corner of the card in line with its short
     side; one such line does not make the card a piece of the floor's pattern (``MIN_CONTINUATIONS``)."""
     sample = Renderer(guided_view_config(size=640, reference="card")).render(999, 4)
+    exclude = cv2.dilate(_foot_and_leg(sample).astype(np.uint8), np.ones((15, 15), np.uint8)) > 0
+    _check_found(detect_reference(sample["rgb"], sample["K"], exclude_mask=exclude), sample, "card")
+
+
+def test_a_sheet_stood_on_from_in_front_of_the_toes_with_the_shin_across_it_and_a_shadow_over_a_corner():
+    """A front view of the eval (seed 4242, 15), as most real photos of a foot on a sheet are taken: the foot and
+    the shin cut the sheet's white region in two pieces and the leg's shadow darkens a corner, so the pieces fill
+    less than half of their hull (``MIN_PIECES_FILL``); all four corners are in view."""
+    sample = Renderer(view_config("front", size=640, reference="a4")).render(4242, 15)
+    exclude = cv2.dilate(_foot_and_leg(sample).astype(np.uint8), np.ones((15, 15), np.uint8)) > 0
+    _check_found(detect_reference(sample["rgb"], sample["K"], exclude_mask=exclude), sample, "a4")
+
+
+def test_a_green_card_touching_a_white_grout_line():
+    """An ood view of the eval (seed 4242, 1): a green card on dark tiles with a white grout line touching a
+    corner, which every channel's threshold joins to it; its chroma does not."""
+    sample = Renderer(view_config("ood", size=640, reference="card")).render(4242, 1)
     exclude = cv2.dilate(_foot_and_leg(sample).astype(np.uint8), np.ones((15, 15), np.uint8)) > 0
     _check_found(detect_reference(sample["rgb"], sample["K"], exclude_mask=exclude), sample, "card")
 

