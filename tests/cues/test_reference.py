@@ -158,6 +158,14 @@ def test_a_sheet_stood_on_from_in_front_of_the_toes_with_the_shin_across_it_and_
     _check_found(detect_reference(sample["rgb"], sample["K"], exclude_mask=exclude), sample, "a4")
 
 
+def test_a_sheet_stood_on_with_the_legs_shadow_over_a_whole_side():
+    """A front view (seed 4342, 6): the leg's shadow lies over one side of the sheet, darkening the paper inside it
+    and the floor beyond it alike (``SHADOW_MAX_BRIGHTNESS``): that side still parts the paper from the floor."""
+    sample = Renderer(view_config("front", size=640, reference="a4")).render(4342, 6)
+    exclude = cv2.dilate(_foot_and_leg(sample).astype(np.uint8), np.ones((15, 15), np.uint8)) > 0
+    _check_found(detect_reference(sample["rgb"], sample["K"], exclude_mask=exclude), sample, "a4")
+
+
 def test_a_green_card_touching_a_white_grout_line():
     """An ood view of the eval (seed 4242, 1): a green card on dark tiles with a white grout line touching a
     corner, which every channel's threshold joins to it; its chroma does not."""

@@ -86,6 +86,10 @@ OCCLUSION_MATCH = 0.35
 FLOOR_MATCH = 0.5
 """The floor beyond two sides of a sheet counts as the same floor when the colours differ by less than this
 fraction of the typical change across the sides (light falls off across a sheet; a shadow lies over a side)."""
+SHADOW_MAX_BRIGHTNESS = 0.8
+"""A sheet's side whose paper is darker than this fraction of the paper elsewhere lies in a shadow (the leg's: 0.5
+on the front render that showed it); lighter, it is lit like the rest and its floor is compared as it is (a tile's
+side at 0.95-0.99 otherwise passed for a sheet's on a real photo of tiles)."""
 MAX_RESIDUAL_RATIO = 2.0
 STRAIGHT_EDGE_PX = 0.5
 STRAIGHT_EDGE_FRACTION = 0.003

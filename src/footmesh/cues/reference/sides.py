@@ -38,6 +38,7 @@ from footmesh.cues.reference.params import (
     OCCLUSION_MATCH,
     PAPER_MAX_SATURATION,
     PLATEAU_PX,
+    SHADOW_MAX_BRIGHTNESS,
     SHEETS,
     SIZES_MM,
     STRAIGHT_EDGE_FRACTION,
@@ -619,14 +620,22 @@ def _strange_borders(quad: np.ndarray, lines: list[_Line]) -> tuple[list[int], l
     Inside each side the paper must be brighter than what lies outside (not a line in the floor beside the
     sheet), and what lies outside must look like the floor beyond another side (not the hem of dark trousers
     across the sheet; where the sheet lies across two floors, a rug's edge, the sides still pair up; a shadow
-    darkens the floor less than the change across the sides)."""
+    darkens the floor less than the change across the sides). A shadow over a whole side (the leg's, in a photo
+    taken from in front of the toes) darkens the paper inside it and the floor beyond it alike: that side's floor
+    is compared with the others' darkened as much as its paper is (where its paper is darker than
+    ``SHADOW_MAX_BRIGHTNESS`` of the rest); a trouser's hem over the sheet leaves the paper inside it as bright as
+    elsewhere."""
     inner, outer = _inner_outer(quad, lines)
     change = float(np.median(np.linalg.norm(inner - outer, axis=1)))
     floor = np.median(outer, axis=0)
+    paper = float(np.median(inner, axis=0).mean())
     strange, outside = [], []
     for i in range(4):
         darker = inner[i].mean() < outer[i].mean() + MIN_CONTRAST
-        if darker or min(np.linalg.norm(outer[i] - outer[j]) for j in range(4) if j != i) >= FLOOR_MATCH * change:
+        shade = float(inner[i].mean()) / max(paper, 1e-6)
+        shade = shade if shade < SHADOW_MAX_BRIGHTNESS else 1.0
+        unlike = min(np.linalg.norm(outer[i] - shade * outer[j]) for j in range(4) if j != i)
+        if darker or unlike >= FLOOR_MATCH * shade * change:
             strange.append(i)
             if np.linalg.norm(inner[i] - floor) < FLOOR_MATCH * change:
                 outside.append(i)
