@@ -10,7 +10,7 @@ Steps:
 1. Marker: ``cv2.aruco.ArucoDetector`` (DICT_4X4_50, id 0) on the image, else on its mirror image (a mirrored
    photo, or a mirrored print, still gives a metric plane).
 2. Sheet and card: candidate quadrilaterals from the outlines of regions at several levels of whiteness (sheet),
-   grey and each colour channel (card), and of Canny edges: each outline's convex hull is simplified
+   grey, each colour channel and chroma (card), and of Canny edges: each outline's convex hull is simplified
    (``approxPolyDP``) and every four of its sides that enclose it make a candidate (the foot on a sheet cuts
    corners off its region), screened at once by a loose metric test (3), its sides then re-fitted to the outline
    points near them.

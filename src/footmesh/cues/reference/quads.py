@@ -78,10 +78,10 @@ def _candidate_groups(
 ) -> list[list[np.ndarray]]:
     """Rough (4, 2) px quadrilaterals (canonical order) that might be one of ``kinds``, from the outlines of
     ``regions``: "sheet" (bright in every channel) or "card" (thresholds of the grey level and of each channel,
-    either way, and edges); in groups to try in turn: the quads the outlines make, then (sheets) those made by
-    completing a hidden corner. Near duplicates of each other and of the keys in ``seen`` (updated) are left out.
-    ``free_focal``: K's focal length is a guess; each quad is also tested, for the kinds whose perspective may
-    correct it (``FOCAL_KINDS``), at the focal length that suits it best (``focal``)."""
+    either way, of the chroma, and edges); in groups to try in turn: the quads the outlines make, then (sheets)
+    those made by completing a hidden corner. Near duplicates of each other and of the keys in ``seen``
+    (updated) are left out. ``free_focal``: K's focal length is a guess; each quad is also tested, for the kinds
+    whose perspective may correct it (``FOCAL_KINDS``), at the focal length that suits it best (``focal``)."""
     if regions not in ("sheet", "card"):
         raise ValueError(f"regions must be 'sheet' or 'card', got {regions!r}")
     h, w = blurred.shape[:2]
