@@ -20,7 +20,7 @@ from footmesh.cues import Cues
 from footmesh.errors import Refusal
 from footmesh.eval.measure import write_inputs
 from footmesh.examples import examples
-from footmesh.pipeline import CropBox, _cues_in_photo, measure_photo
+from footmesh.pipeline import CropBox, Located, _cues_in_photo, _turned_back_located, measure_photo
 
 CONTRACT_KEYS = {
     "version",
@@ -644,3 +644,33 @@ def test_the_mask_is_the_measured_foot_without_the_leg(tmp_path):
     assert (mask & foot).sum() > 0.98 * foot.sum()
     assert (mask & leg).sum() < 0.15 * foot.sum()
     assert (mask & foot).sum() / (mask | foot).sum() > 0.88
+
+
+@pytest.mark.parametrize("quarter_turns", [1, 2, 3])
+def test_a_foot_located_in_a_turned_photo_is_put_back_in_the_photos_pixels(quarter_turns):
+    rng = np.random.default_rng(quarter_turns)
+    photo = rng.random((30, 44)).astype(np.float32)
+    after = np.ascontiguousarray(np.rot90(photo, quarter_turns))
+    crop = CropBox(-3, 5, 16)  # in the turned photo, reaching past its edge
+    mask = np.zeros(after.shape, bool)
+    mask[6:9, 2:12] = True
+    joints = np.tile(np.array([[4.0, 7.0]], np.float32), (18, 1))
+    located = Located(crop, Cues(mask.astype(np.float32), joints, np.ones(18, np.float32), "rgb"), mask)
+    back = _turned_back_located(located, quarter_turns, width=44, height=30)
+    np.testing.assert_array_equal(np.rot90(back.crop.cut(photo, fill=-1.0), quarter_turns), crop.cut(after, fill=-1.0))
+    np.testing.assert_array_equal(np.rot90(back.mask, quarter_turns), mask)
+    assert back.quarter_turns == quarter_turns
+    x, y = back.cues.joints2d_px[0]
+    assert back.mask[int(y), int(x)]  # the joint stays on the silhouette it lay on
+
+
+def test_a_real_foot_whose_leg_lies_across_the_photo_is_read_turned_not_refused_as_cut_off(tmp_path):
+    """A real photo (``../shared/real/a4``, evaluation only) taken straight down with the leg entering from the
+    side: upright, the network reads the heel under the shin as past the photo's edge; turned, it keeps the foot
+    in view, and the foot on the sheet is measured within the adult range."""
+    photo = Path(__file__).resolve().parents[1] / ".." / "shared" / "real" / "a4" / "photos" / "arshoe_barefeet1.jpg"
+    result = measure_photo(photo, tmp_path)
+    assert result["scaled"] and result["scale_source"] == "a4"
+    assert any("turned 90 deg" in message or "turned 270 deg" in message for message in result["messages"])
+    low, high = MeasureConfig().plausible_length_mm
+    assert low <= result["measurements"]["stick_length"]["value_mm"] <= high

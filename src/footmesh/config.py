@@ -270,6 +270,12 @@ class MeasureConfig:
     foot's 2D length (heel to the farthest toe tip) around the convex hull of its joints: the leg leaving the
     frame (almost every real photo) is no cut-off foot; the toes or the heel on the edge are."""
     edge_margin_px: float = 2.0
+    turned_looks: tuple[int, ...] = (1, 3, 2)
+    """Where the joints put the foot past the photo's edge (``refusals.cut_off``), its crop is shown to the network
+    again turned this many times 90 deg counter-clockwise, in turn, and the first look that keeps the foot in the
+    photo is measured: the networks learnt feet with the leg rising up the image, and a photo taken straight down
+    (whose phone cannot tell which way is up) or held sideways shows them the leg across it, the heel under the
+    shin read as past the edge. Empty: never turned."""
     max_rgb_end_on: float = 0.643
     """RGB photos (no depth) are refused when the fitted foot's long axis points within acos(this) = 50 deg of the
     line of sight: its length is then foreshortened and poorly seen. ``benchmarks/bench_end_on.py`` (refusal off,

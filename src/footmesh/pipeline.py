@@ -25,7 +25,7 @@ from footmesh import __version__, references, refusals, report, viz
 from footmesh.config import MeasureConfig
 from footmesh.cues import Cues
 from footmesh.cues.floor import depth_floor
-from footmesh.cues.predict import average_cues, predict_cues
+from footmesh.cues.predict import average_cues, predict_cues, turned, turned_back
 from footmesh.cues.refine import clear_paper, height_image, refine_silhouette
 from footmesh.cues.trim import foot_axes, trim_silhouette
 from footmesh.cues.weights import network_for as cues_network
@@ -76,6 +76,8 @@ class Located:
     crop: CropBox
     cues: Cues
     mask: np.ndarray = field(repr=False)
+    quarter_turns: int = 0
+    """The photo was shown to the networks turned this many times 90 deg counter-clockwise (``_turned_look``)."""
 
 
 def _cues_in_photo(cues: Cues, crop: CropBox, width: int, height: int) -> Cues:
@@ -420,6 +422,7 @@ def _run_stages(photo: Photo, side: str, config: MeasureConfig, input: str) -> t
 
     t = time.perf_counter()
     reference = None
+    sheet_px = None  # the corners of a sheet found, whose paper is cleared from the feet's silhouettes
     notes = list(photo.info.notes)
     feet_mask = np.any([foot.mask for foot in feet], axis=0)
     if kind == "rgb":
@@ -436,7 +439,12 @@ def _run_stages(photo: Photo, side: str, config: MeasureConfig, input: str) -> t
                 "clothing and shadows"
             )
         if reference is not None and config.clear_paper and references.kind(reference.kind).detector == "sheet":
-            feet = [_off_the_paper(foot, rgb, reference.corners_px) for foot in feet]
+            sheet_px = reference.corners_px
+            feet = [_off_the_paper(foot, rgb, sheet_px) for foot in feet]
+    with torch.inference_mode():
+        feet = [
+            _turned_look(foot, rgb if kind != "depth" else None, depth, camera, kind, config, sheet_px) for foot in feet
+        ]
     floor_seen = None  # with depth, the floor the depth shows: what a reference's floor is to a plain photo
     if kind != "rgb" and config.floor_from_depth:
         floor_seen = depth_floor(depth, K, feet_mask)
@@ -473,6 +481,57 @@ def _run_stages(photo: Photo, side: str, config: MeasureConfig, input: str) -> t
     if len(outcomes) == 1:
         return measured[0][0], measured[0][1]
     return _both_feet(outcomes, reference, side)
+
+
+def _turned_look(
+    located: Located,
+    rgb: np.ndarray | None,
+    depth: np.ndarray | None,
+    camera: Camera,
+    kind: str,
+    config: MeasureConfig,
+    sheet_px: np.ndarray | None,
+) -> Located:
+    """The foot as the networks see the photo turned (``MeasureConfig.turned_looks``) where upright its joints
+    put it past the photo's edge (``refusals.cut_off``) and a turned look's do not; else the upright look. Of the
+    feet a turned look finds, the one whose silhouette overlaps this one's most; its silhouette is cleared of the
+    sheet's paper too where ``sheet_px`` (4, 2) is given."""
+    h, w = located.mask.shape
+    if refusals.cut_off(located.mask, located.cues.joints2d_px, w, h, config) is None:
+        return located
+    for quarter_turns in config.turned_looks:
+        try:
+            feet = locate_feet(
+                turned(rgb, quarter_turns), turned(depth, quarter_turns), camera.turned(quarter_turns).K, kind, config
+            )
+        except Refusal:
+            continue
+        back = [_turned_back_located(foot, quarter_turns, w, h) for foot in feet]
+        again = max(back, key=lambda foot: int((foot.mask & located.mask).sum()))
+        if not (again.mask & located.mask).any():
+            continue
+        if sheet_px is not None:
+            again = _off_the_paper(again, rgb, sheet_px)
+        if refusals.cut_off(again.mask, again.cues.joints2d_px, w, h, config) is None:
+            return again
+    return located
+
+
+def _turned_back_located(located: Located, quarter_turns: int, width: int, height: int) -> Located:
+    """A foot located in a photo turned ``quarter_turns`` x 90 deg counter-clockwise -> the same foot in the
+    ``width`` x ``height`` photo before the turn (its crop: the square the turned one covers)."""
+    crop, k = located.crop, quarter_turns % 4
+    turned_height = height if k % 2 == 0 else width
+    for _ in range(k):
+        # one turn took (x, y) of an image as wide as the turned one is high to (y, that width - 1 - x): undone
+        crop = CropBox(turned_height - crop.y0 - crop.side, crop.x0, crop.side)
+        turned_height = width if turned_height == height else height
+    return Located(
+        crop,
+        turned_back(located.cues, quarter_turns),
+        np.ascontiguousarray(np.rot90(located.mask, -quarter_turns)),
+        quarter_turns=quarter_turns % 4,
+    )
 
 
 def _off_the_paper(located: Located, rgb: np.ndarray, sheet_px: np.ndarray) -> Located:
@@ -591,6 +650,11 @@ def _measure_located(
     refusal = refusals.cut_off(located.mask, located.cues.joints2d_px, w, h, config)
     if refusal is not None:
         raise refusal
+    if located.quarter_turns:
+        messages.append(
+            f"the foot was read with the photo turned {90 * located.quarter_turns} deg: upright, the leg lay across "
+            "the picture and the heel was read as past its edge"
+        )
     t = time.perf_counter()
     init = None
     side_source = "given" if side != "auto" else "fit"

@@ -13,7 +13,14 @@ from footmesh.config import CuesNetConfig
 from footmesh.cues import Cues
 from footmesh.cues.inputs import network_input
 from footmesh.cues.net import CuesNet
-from footmesh.cues.predict import MIRROR_AVERAGED_INPUTS, joints_to_image, predict_cues, resize_inputs
+from footmesh.cues.predict import (
+    MIRROR_AVERAGED_INPUTS,
+    joints_to_image,
+    predict_cues,
+    resize_inputs,
+    turned,
+    turned_back,
+)
 from footmesh.cues.weights import save_weights
 from footmesh.train.data import resize_joints
 
@@ -210,3 +217,17 @@ def test_the_rgb_network_answers_a_mirrored_photo_with_the_mirror_of_its_answer(
     np.testing.assert_allclose(mirrored.joints2d_px, flipped, atol=1e-3)
     np.testing.assert_allclose(mirrored.joint_confidence, cues.joint_confidence, atol=1e-5)
     assert mirrored.right_probability == pytest.approx(1.0 - cues.right_probability, abs=1e-6)
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.integers(0, 7), st.integers(3, 12), st.integers(3, 12), st.data())
+def test_cues_of_a_turned_image_turned_back_land_on_the_pixels_before_the_turn(quarter_turns, height, width, data):
+    y, x = data.draw(st.integers(0, height - 1)), data.draw(st.integers(0, width - 1))
+    image = np.zeros((height, width), np.float32)
+    image[y, x] = 1.0
+    after = turned(image, quarter_turns)
+    ty, tx = np.argwhere(after == 1.0)[0]  # where the turn took the pixel
+    joints = np.tile(np.array([[tx, ty]], np.float32), (18, 1))
+    back = turned_back(Cues(after, joints, np.ones(18, np.float32), "rgb"), quarter_turns)
+    np.testing.assert_array_equal(back.silhouette, image)
+    np.testing.assert_allclose(back.joints2d_px, np.tile([[x, y]], (18, 1)))

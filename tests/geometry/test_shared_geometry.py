@@ -99,3 +99,21 @@ def test_a_robust_plane_ignores_what_stands_off_it_and_its_frame_faces_the_camer
     np.testing.assert_allclose(pose[:3, :3] @ pose[:3, :3].T, np.eye(3), atol=1e-12)
     assert np.linalg.det(pose[:3, :3]) > 0 and np.linalg.inv(pose)[2, 3] > 0  # the camera is above it
     assert robust_plane(floor[:50]) is None
+
+
+@pytest.mark.parametrize("quarter_turns", [0, 1, 2, 3, 5])
+def test_a_turned_camera_projects_where_the_turn_takes_the_pixels(quarter_turns):
+    camera = Camera(K, 640, 480)
+    image = np.zeros((480, 640), np.uint8)
+    uv = np.round(camera.project(POINTS)[0]).astype(int)
+    image[uv[:, 1], uv[:, 0]] = [1, 2, 3]
+    after = np.rot90(image, quarter_turns)
+    turned = camera.turned(quarter_turns)
+    assert (turned.width, turned.height) == (after.shape[1], after.shape[0])
+    points = POINTS.copy()
+    for _ in range(quarter_turns % 4):  # the camera frame turns with the image: x' = y, y' = -x
+        points = np.stack([points[:, 1], -points[:, 0], points[:, 2]], axis=1)
+    projected = turned.project(points)[0]
+    for label, (x, y) in zip((1, 2, 3), projected, strict=True):
+        ty, tx = np.argwhere(after == label)[0]
+        assert abs(x - tx) <= 0.5 + 1e-9 and abs(y - ty) <= 0.5 + 1e-9

@@ -155,3 +155,23 @@ def average_cues(cues: list[Cues]) -> Cues:
         input="+".join(c.input for c in cues),
         right_probability=float(np.mean(sides)) if sides else None,
     )
+
+
+def turned(image: np.ndarray | None, quarter_turns: int) -> np.ndarray | None:
+    """An (H, W[, C]) image turned ``quarter_turns`` x 90 deg counter-clockwise (``np.rot90``), contiguous."""
+    return None if image is None else np.ascontiguousarray(np.rot90(image, quarter_turns))
+
+
+def turned_back(cues: Cues, quarter_turns: int) -> Cues:
+    """Cues of an image turned ``quarter_turns`` x 90 deg counter-clockwise (``turned``) -> the same cues in the
+    pixels of the image before the turn: the networks were trained with the leg rising towards the top of the
+    image, and a photo held sideways shows them the leg across it."""
+    k = quarter_turns % 4
+    joints = cues.joints2d_px.astype(np.float64)
+    h, w = cues.silhouette.shape  # the turned image's
+    for _ in range(k):
+        # one counter-clockwise turn maps (x, y) of a (W', H') image to (y, W' - 1 - x): undone here, last first
+        h, w = w, h
+        joints = np.stack([w - 1 - joints[:, 1], joints[:, 0]], axis=1)
+    silhouette = np.ascontiguousarray(np.rot90(cues.silhouette, -k))
+    return replace(cues, silhouette=silhouette, joints2d_px=joints.astype(np.float32))

@@ -78,6 +78,17 @@ class Camera:
         image: a padded crop)."""
         return Camera(crop_intrinsics(self.K, x0, y0), int(width), int(height))
 
+    def turned(self, quarter_turns: int) -> Camera:
+        """The camera of this image turned ``quarter_turns`` x 90 deg counter-clockwise (``np.rot90``): pixel
+        (x, y) goes to (y, W - 1 - x) per turn, and the camera frame with it (x' = y, y' = -x)."""
+        K, width, height = self.K.astype(np.float64), self.width, self.height
+        frame = np.array([[0.0, 1.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])  # x' = y, y' = -x
+        for _ in range(quarter_turns % 4):
+            pixels = np.array([[0.0, 1.0, 0.0], [-1.0, 0.0, width - 1.0], [0.0, 0.0, 1.0]])
+            K = pixels @ K @ frame.T
+            width, height = height, width
+        return Camera(K, width, height)
+
     def project(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Camera-frame points (..., 3) mm -> pixels (..., 2) and depths (...,) mm."""
         return project(np.asarray(points, dtype=np.float64), self.K)
