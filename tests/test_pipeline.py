@@ -20,7 +20,14 @@ from footmesh.cues import Cues
 from footmesh.errors import Refusal
 from footmesh.eval.measure import write_inputs
 from footmesh.examples import examples
-from footmesh.pipeline import CropBox, Located, _cues_in_photo, _turned_back_located, measure_photo
+from footmesh.pipeline import (
+    CropBox,
+    Located,
+    _cues_in_photo,
+    _turned_back_located,
+    leg_angle_deg,
+    measure_photo,
+)
 
 CONTRACT_KEYS = {
     "version",
@@ -674,3 +681,42 @@ def test_a_real_foot_whose_leg_lies_across_the_photo_is_read_turned_not_refused_
     assert any("turned 90 deg" in message or "turned 270 deg" in message for message in result["messages"])
     low, high = MeasureConfig().plausible_length_mm
     assert low <= result["measurements"]["stick_length"]["value_mm"] <= high
+
+
+def test_the_leg_angle_is_where_the_ankle_lies_from_the_toe_tips():
+    joints = np.zeros((18, 2))
+    joints[[3, 6, 9, 12, 15]] = [50.0, 80.0]  # the toe tips
+    for ankle, angle in (((50.0, 20.0), 0.0), ((90.0, 80.0), 90.0), ((10.0, 80.0), 90.0), ((50.0, 130.0), 180.0)):
+        joints[16] = ankle
+        assert leg_angle_deg(joints) == pytest.approx(angle)
+
+
+def test_a_photo_held_upside_down_is_read_turned_and_measures_as_held_upright(tmp_path):
+    """A render from in front of the toes turned 180 deg (the leg running down the picture, as in photos looking
+    down at one's own feet): upright the networks read it 35 mm short; turned back they see what they learnt."""
+    import json as json_
+
+    from footmesh.eval.measure import true_measurements
+    from footmesh.geometry.camera import Camera
+    from footmesh.synth.render import Renderer
+    from footmesh.synth.scene import view_config
+
+    sample = Renderer(view_config("front", size=640, reference="a4")).render(4242, 0)
+    cv2.imwrite(str(tmp_path / "photo.png"), np.ascontiguousarray(np.rot90(sample["rgb"], 2))[:, :, ::-1])
+    K = Camera(sample["K"], 640, 640).turned(2).K
+    intrinsics = {"fx": K[0, 0], "fy": K[1, 1], "cx": K[0, 2], "cy": K[1, 2], "width": 640, "height": 640}
+    (tmp_path / "K.json").write_text(json_.dumps({k: float(v) for k, v in intrinsics.items()}))
+    truth = true_measurements(sample["shape"], "right" if int(sample["side"]) else "left")["stick_length"]
+
+    def length_error(config: MeasureConfig) -> tuple[float, list[str]]:
+        out = tmp_path / str(config.upside_down_deg)
+        result = measure_photo(tmp_path / "photo.png", out, intrinsics=tmp_path / "K.json", config=config)
+        assert result["scale_source"] == "a4"
+        return result["measurements"]["stick_length"]["value_mm"] - truth, result["messages"]
+
+    error, messages = length_error(MeasureConfig())
+    assert any("turned 180 deg" in m for m in messages)
+    assert abs(error) < 8.0
+    upright, messages = length_error(MeasureConfig(upside_down_deg=None))
+    assert not any("turned" in m for m in messages)
+    assert abs(upright) > 20.0

@@ -271,11 +271,18 @@ class MeasureConfig:
     frame (almost every real photo) is no cut-off foot; the toes or the heel on the edge are."""
     edge_margin_px: float = 2.0
     turned_looks: tuple[int, ...] = (1, 3, 2)
-    """Where the joints put the foot past the photo's edge (``refusals.cut_off``), its crop is shown to the network
-    again turned this many times 90 deg counter-clockwise, in turn, and the first look that keeps the foot in the
-    photo is measured: the networks learnt feet with the leg rising up the image, and a photo taken straight down
-    (whose phone cannot tell which way is up) or held sideways shows them the leg across it, the heel under the
-    shin read as past the edge. Empty: never turned."""
+    """Where the joints put the foot past the photo's edge (``refusals.cut_off``), the photo is shown to the
+    networks again turned this many times 90 deg counter-clockwise, in turn, and the first look that keeps the foot
+    in the photo is measured: the networks learnt feet with the leg rising up the image, and a photo taken straight
+    down (whose phone cannot tell which way is up) or held sideways shows them the leg across it, the heel under
+    the shin read as past the edge (``pipeline.turned_where_needed``). Empty: never turned."""
+    upside_down_deg: float | None = 150.0
+    """Where the largest foot's ankle lies more than this from straight above its toe tips
+    (``pipeline.leg_angle_deg``), the feet are taken from the photo turned 180 deg, where that look sees the ankle
+    below the toes too (``pipeline.turned_where_needed``). On the renders the networks learnt from (any side and
+    height, never from behind the heel; 150 of seed 1) the true angle is at most 147 deg (95 % below 123); on the
+    80 real photos looking down at one's own feet (``../shared/real/rafiansyah``) the networks' is 145-180, and
+    turned their silhouettes cover the feet, not the shins (located-foot IoU 0.418 -> 0.620). None: never turned."""
     max_rgb_end_on: float = 0.643
     """RGB photos (no depth) are refused when the fitted foot's long axis points within acos(this) = 50 deg of the
     line of sight: its length is then foreshortened and poorly seen. ``benchmarks/bench_end_on.py`` (refusal off,

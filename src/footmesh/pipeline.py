@@ -9,6 +9,7 @@ options that cannot be used raise ``InputError``.
 
 from __future__ import annotations
 
+import functools
 import logging
 import math
 import os
@@ -77,7 +78,7 @@ class Located:
     cues: Cues
     mask: np.ndarray = field(repr=False)
     quarter_turns: int = 0
-    """The photo was shown to the networks turned this many times 90 deg counter-clockwise (``_turned_look``)."""
+    """The photo was shown to the networks turned this many times 90 deg counter-clockwise (``turned_where_needed``)."""
 
 
 def _cues_in_photo(cues: Cues, crop: CropBox, width: int, height: int) -> Cues:
@@ -441,10 +442,7 @@ def _run_stages(photo: Photo, side: str, config: MeasureConfig, input: str) -> t
         if reference is not None and config.clear_paper and references.kind(reference.kind).detector == "sheet":
             sheet_px = reference.corners_px
             feet = [_off_the_paper(foot, rgb, sheet_px) for foot in feet]
-    with torch.inference_mode():
-        feet = [
-            _turned_look(foot, rgb if kind != "depth" else None, depth, camera, kind, config, sheet_px) for foot in feet
-        ]
+    feet = turned_where_needed(feet, rgb if kind != "depth" else None, depth, camera, kind, config, sheet_px)
     floor_seen = None  # with depth, the floor the depth shows: what a reference's floor is to a plain photo
     if kind != "rgb" and config.floor_from_depth:
         floor_seen = depth_floor(depth, K, feet_mask)
@@ -483,38 +481,79 @@ def _run_stages(photo: Photo, side: str, config: MeasureConfig, input: str) -> t
     return _both_feet(outcomes, reference, side)
 
 
-def _turned_look(
-    located: Located,
+def turned_where_needed(
+    feet: list[Located],
     rgb: np.ndarray | None,
     depth: np.ndarray | None,
     camera: Camera,
     kind: str,
     config: MeasureConfig,
-    sheet_px: np.ndarray | None,
-) -> Located:
-    """The foot as the networks see the photo turned (``MeasureConfig.turned_looks``) where upright its joints
-    put it past the photo's edge (``refusals.cut_off``) and a turned look's do not; else the upright look. Of the
-    feet a turned look finds, the one whose silhouette overlaps this one's most; its silhouette is cleared of the
-    sheet's paper too where ``sheet_px`` (4, 2) is given."""
-    h, w = located.mask.shape
-    if refusals.cut_off(located.mask, located.cues.joints2d_px, w, h, config) is None:
-        return located
-    for quarter_turns in config.turned_looks:
+    sheet_px: np.ndarray | None = None,
+) -> list[Located]:
+    """The feet ``locate_feet`` found (largest first), or those the networks find in the photo turned, where
+    upright they see it as they never learnt to (they learnt feet with the leg rising up the picture):
+
+    - the largest foot's ankle below its toes (``MeasureConfig.upside_down_deg``): every foot is taken from the
+      photo turned 180 deg, where that look puts the ankle below the toes too (photos looking down at one's own
+      feet, the legs entering from the bottom);
+    - a foot past the photo's edge (``refusals.cut_off``): that foot from the first turn of
+      ``MeasureConfig.turned_looks`` that keeps it in view (a photo taken straight down or held sideways, the leg
+      across the picture and the heel under the shin read as past the edge).
+
+    A turned look's foot is the one whose silhouette overlaps the upright one's most; ``sheet_px``: (4, 2) corners
+    of a sheet whose paper is cleared from turned looks' silhouettes (``_off_the_paper``), or None. Two feet that
+    are one turned foot are kept once."""
+    h, w = (rgb if rgb is not None else depth).shape[:2]
+
+    @functools.cache
+    def turned_feet(quarter_turns: int) -> tuple[Located, ...]:
         try:
-            feet = locate_feet(
-                turned(rgb, quarter_turns), turned(depth, quarter_turns), camera.turned(quarter_turns).K, kind, config
-            )
+            with torch.inference_mode():
+                found = locate_feet(
+                    turned(rgb, quarter_turns),
+                    turned(depth, quarter_turns),
+                    camera.turned(quarter_turns).K,
+                    kind,
+                    config,
+                )
         except Refusal:
-            continue
-        back = [_turned_back_located(foot, quarter_turns, w, h) for foot in feet]
-        again = max(back, key=lambda foot: int((foot.mask & located.mask).sum()))
-        if not (again.mask & located.mask).any():
-            continue
-        if sheet_px is not None:
-            again = _off_the_paper(again, rgb, sheet_px)
-        if refusals.cut_off(again.mask, again.cues.joints2d_px, w, h, config) is None:
-            return again
-    return located
+            return ()
+        back = (_turned_back_located(foot, quarter_turns, w, h) for foot in found)
+        return tuple(back if sheet_px is None else (_off_the_paper(foot, rgb, sheet_px) for foot in back))
+
+    first = feet[0]
+    if config.upside_down_deg is not None and leg_angle_deg(first.cues.joints2d_px) > config.upside_down_deg:
+        match = _overlapping(first, turned_feet(2))
+        # kept only where the turned look too sees the ankle below the toes: else the two looks disagree
+        if match is not None and leg_angle_deg(match.cues.joints2d_px) > 90.0:
+            feet = list(turned_feet(2))
+    looks = []
+    for foot in feet:
+        if refusals.cut_off(foot.mask, foot.cues.joints2d_px, w, h, config) is not None:
+            for quarter_turns in (k for k in config.turned_looks if k != foot.quarter_turns):
+                again = _overlapping(foot, turned_feet(quarter_turns))
+                if again is not None and refusals.cut_off(again.mask, again.cues.joints2d_px, w, h, config) is None:
+                    foot = again
+                    break
+        looks.append(foot)
+    return list({id(foot): foot for foot in looks}.values())
+
+
+def _overlapping(located: Located, others: tuple[Located, ...]) -> Located | None:
+    """Of ``others``, the foot whose silhouette overlaps ``located``'s most; None where none does."""
+    overlap, best = max(
+        ((int((o.mask & located.mask).sum()), o) for o in others), key=lambda p: p[0], default=(0, None)
+    )
+    return best if overlap > 0 else None
+
+
+def leg_angle_deg(joints2d_px: np.ndarray) -> float:
+    """The angle (deg, 0-180) between the image's up and the direction from the toe tips' mean to the ankle, of
+    joints (18, 2) px: where the leg rises in the picture. The networks learnt it below ``MeasureConfig.
+    upside_down_deg``."""
+    joints = np.asarray(joints2d_px, dtype=np.float64)
+    v = joints[sk.HEEL_BRANCH[0]] - joints[[tip for _, _, tip in sk.TOE_BRANCHES]].mean(axis=0)
+    return float(np.degrees(np.arctan2(abs(v[0]), -v[1])))
 
 
 def _turned_back_located(located: Located, quarter_turns: int, width: int, height: int) -> Located:
@@ -652,8 +691,8 @@ def _measure_located(
         raise refusal
     if located.quarter_turns:
         messages.append(
-            f"the foot was read with the photo turned {90 * located.quarter_turns} deg: upright, the leg lay across "
-            "the picture and the heel was read as past its edge"
+            f"the foot was read with the photo turned {90 * located.quarter_turns} deg: the networks learnt feet "
+            "with the leg rising up the picture, and upright this one's leg lay across it or below the toes"
         )
     t = time.perf_counter()
     init = None

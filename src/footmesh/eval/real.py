@@ -43,7 +43,8 @@ class PhotoScore:
     IoU of the silhouette on the crop around each foot; ``located_ious`` that of the pipeline's own located foot
     that best matches each hand-drawn one (0 when it found none; ``located_scores``); with ``measure``,
     ``measured_ious`` that of the best-matching ``mask.png`` that ``footmesh measure`` wrote (0 when it refused the
-    photo: ``answered`` False)."""
+    photo: ``answered`` False) and ``measured_sides`` the side its result gives that foot ("" where it measured
+    none there)."""
 
     photo: str
     iou: float
@@ -55,6 +56,7 @@ class PhotoScore:
     located_ious: tuple[float, ...] = ()
     measured_ious: tuple[float, ...] = ()
     answered: bool | None = None
+    measured_sides: tuple[str, ...] = ()
 
 
 def mask_scores(predicted: np.ndarray, truth: np.ndarray) -> tuple[float, float, float]:
@@ -121,11 +123,25 @@ def evaluate_set(
         sides, crop_ious = crop_scores(rgb, truth_img, feet, weights)
         located = () if weights is not None else located_ious(photo, truth_img, feet)
         answered, measured, shown, caption = None, (), predicted, f"IoU {iou:.2f}"
+        measured_sides: tuple[str, ...] = ()
         if measure and weights is None:
-            answered, measured, shown = measured_ious(photo, truth_img, feet)
+            made = measured_ious(photo, truth_img, feet)
+            answered, measured, measured_sides, shown = made.answered, made.ious, made.sides, made.union
             caption = "mask.png " + (" ".join(f"{i:.2f}" for i in measured) if answered else "refused")
         scores.append(
-            PhotoScore(entry["photo"], iou, precision, recall, feet, sides, crop_ious, located, measured, answered)
+            PhotoScore(
+                entry["photo"],
+                iou,
+                precision,
+                recall,
+                feet,
+                sides,
+                crop_ious,
+                located,
+                measured,
+                answered,
+                measured_sides,
+            )
         )
         if sheet is not None:
             said = f" L/R {''.join(s[0].upper() for s in sides)}" if sides else ""
@@ -164,24 +180,37 @@ def located_ious(
 ) -> tuple[float, ...]:
     """Per hand-drawn foot (``mask`` values ``MASK_VALUE``): the IoU of the best-matching foot the pipeline
     locates in the photo (``pipeline.locate_feet`` at its working resolution, as ``footmesh measure`` runs it: both
-    passes of the shipped RGB network, the cut to the joints and the snap to the photo's edges), 0 when it locates
-    none (a refusal, or no foot there)."""
+    passes of the shipped RGB network, the cut to the joints and the snap to the photo's edges, and the look at the
+    photo turned where upright the networks see the ankle below the toes or the foot past the edge,
+    ``pipeline.turned_where_needed``), 0 when it locates none (a refusal, or no foot there)."""
     from footmesh.errors import Refusal
-    from footmesh.pipeline import locate_feet, working_photo
+    from footmesh.pipeline import locate_feet, turned_where_needed, working_photo
 
     config = config if config is not None else MeasureConfig()
     rgb, _, camera, _ = working_photo(photo, config.rgb_working_max_side)
     try:
-        found = [foot.mask for foot in locate_feet(rgb, None, camera.K, "rgb", config)]
+        located = locate_feet(rgb, None, camera.K, "rgb", config)
+        found = [foot.mask for foot in turned_where_needed(located, rgb, None, camera, "rgb", config)]
     except Refusal:
         found = []
     return _best_ious(found, cv2.resize(mask, rgb.shape[1::-1], interpolation=cv2.INTER_NEAREST), feet)
 
 
-def measured_ious(photo: Photo, mask: np.ndarray, feet: tuple[str, ...]) -> tuple[bool, tuple[float, ...], np.ndarray]:
-    """Whether ``footmesh measure`` answered the photo (default settings), per hand-drawn foot (``mask`` values
-    ``MASK_VALUE``) the IoU of the best-matching foot mask it wrote (``mask.png``, ``mask_1.png``: photo pixels;
-    all 0 when it refused the photo), and the union of those masks (H, W) bool."""
+@dataclass(frozen=True)
+class Measured:
+    """What ``footmesh measure`` made of a photo (``measured_ious``): whether it answered, per hand-drawn foot the
+    IoU of the best-matching ``mask.png`` it wrote (0 where none) and that foot's side in its result ("" where no
+    mask overlaps the foot), and the union of its masks (H, W) bool."""
+
+    answered: bool
+    ious: tuple[float, ...]
+    sides: tuple[str, ...]
+    union: np.ndarray
+
+
+def measured_ious(photo: Photo, mask: np.ndarray, feet: tuple[str, ...]) -> Measured:
+    """``footmesh measure`` (default settings) on one photo, scored against its hand-drawn feet (``mask`` values
+    ``MASK_VALUE``; its masks ``mask.png``, ``mask_1.png`` are in photo pixels)."""
     import tempfile
 
     from footmesh.errors import Refusal
@@ -190,11 +219,24 @@ def measured_ious(photo: Photo, mask: np.ndarray, feet: tuple[str, ...]) -> tupl
 
     with tempfile.TemporaryDirectory() as out:
         try:
-            measure_loaded_photo(photo, out, request_options("auto", "mm", "auto"))
+            result = measure_loaded_photo(photo, out, request_options("auto", "mm", "auto"))
         except Refusal:
-            return False, (0.0,) * len(feet), np.zeros(mask.shape, bool)
-        written = [cv2.imread(str(path), cv2.IMREAD_GRAYSCALE) > 0 for path in sorted(Path(out).glob("mask*.png"))]
-    return True, _best_ious(written, mask, feet), np.any(written, axis=0) if written else np.zeros(mask.shape, bool)
+            return Measured(False, (0.0,) * len(feet), ("",) * len(feet), np.zeros(mask.shape, bool))
+        # "feet" lists each foot only where two were in view
+        entries = result["feet"] if "feet" in result else [{"measured": True, **result}]
+        written = [
+            (entry["side"], cv2.imread(str(Path(out) / entry["files"]["mask_png"]), cv2.IMREAD_GRAYSCALE) > 0)
+            for entry in entries
+            if entry["measured"]
+        ]
+    sides = []
+    for side in feet:
+        truth = mask == MASK_VALUE[side]
+        best = max(written, key=lambda pair: mask_scores(pair[1], truth)[0], default=None)
+        sides.append(best[0] if best is not None and (best[1] & truth).any() else "")
+    masks = [m for _, m in written]
+    union = np.any(masks, axis=0) if masks else np.zeros(mask.shape, bool)
+    return Measured(True, _best_ious(masks, mask, feet), tuple(sides), union)
 
 
 def _best_ious(found: list[np.ndarray], mask: np.ndarray, feet: tuple[str, ...]) -> tuple[float, ...]:
@@ -260,6 +302,7 @@ def summarise(scores: list[PhotoScore]) -> dict[str, float]:
     judged = [(t, p) for s in scores if s.predicted_sides for t, p in zip(s.feet, s.predicted_sides, strict=True)]
     located = [i for s in scores for i in s.located_ious]
     measured = [i for s in scores for i in s.measured_ious]
+    measured_sides = [(t, p) for s in scores for t, p in zip(s.feet, s.measured_sides, strict=False) if p]
     return {
         "photos": len(scores),
         "feet": sum(len(s.feet) for s in scores),
@@ -272,6 +315,8 @@ def summarise(scores: list[PhotoScore]) -> dict[str, float]:
         "mean_measured_iou": float(np.mean(measured)) if measured else None,
         "answered": sum(bool(s.answered) for s in scores) if measured else None,
         "side_right_share": float(np.mean([t == p for t, p in judged])) if judged else None,
+        "measured_feet": len(measured_sides) if measured else None,
+        "measured_side_right_share": float(np.mean([t == p for t, p in measured_sides])) if measured_sides else None,
     }
 
 
@@ -288,11 +333,18 @@ def format_table(name: str, summary: dict[str, float]) -> str:
         ("mean IoU of the measured foot's mask.png", _or_dash(summary["mean_measured_iou"]), "- (--measure)"),
         ("photos answered by footmesh measure", _or_dash(summary["answered"], "d"), "- (--measure)"),
         ("side right, per foot", "no left/right head" if side is None else f"{100 * side:.1f} %", ">= 95 %"),
+        ("side right, per measured foot", _side_share(summary), "- (--measure: the side in result.json)"),
     ]
     width = max(len(r[0]) for r in rows)
     lines = [f"real photos: {name} ({summary['photos']} photos, {summary['feet']} feet), RGB network, whole photo"]
     lines += [f"  {what:<{width}}  {ours:<34}  target {target}" for what, ours, target in rows]
     return "\n".join(lines)
+
+
+def _side_share(summary: dict[str, float]) -> str:
+    """The share of measured feet given their right side, and how many were measured, or a dash."""
+    share = summary["measured_side_right_share"]
+    return "-" if share is None else f"{100 * share:.1f} % of {summary['measured_feet']}"
 
 
 def _or_dash(value: float | None, spec: str = ".3f") -> str:
