@@ -4,9 +4,9 @@ The cue networks learnt feet with the leg rising up the picture (renders of a ca
 pointed straight down cannot tell which way is up, people hold phones sideways, and photos looking down at one's
 own feet show the legs entering from the bottom. Each photo (``footmesh eval measure``'s renders of ``--views``,
 RGB + A4 sheet, K.json given) is measured as rendered and turned 90, 180 and 270 deg counter-clockwise (the photo
-and its K turned together), with the pipeline's turned looks (``MeasureConfig.turned_looks``,
-``MeasureConfig.upside_down_deg``; ``pipeline.turned_where_needed``) and without them. The table gives per turn
-the photos answered, those with millimetres, the length MAE on those and how many were read turned.
+and its K turned together), with the pipeline's turned looks (``pipeline.turned_where_needed``: the floor's up,
+the ankle below the toes, the foot past the edge) and without them. The table gives per turn the photos
+answered, those with millimetres, the length MAE on those and how many were read turned.
 
 Run: ``python benchmarks/bench_turned.py [--n 16] [--views front guided] [--seed 4242]``.
 Real photos beside it: ``footmesh eval real --set ../shared/real/rafiansyah --measure`` (first-person photos,
@@ -58,7 +58,7 @@ def run(views: list[str], n: int, seed: int) -> str:
 
     configs = {
         "turned looks": MeasureConfig(),
-        "upright only": replace(MeasureConfig(), turned_looks=(), upside_down_deg=None),
+        "upright only": replace(MeasureConfig(), turned_looks=(), upside_down_deg=None, floor_up_turn_deg=None),
     }
     lines = [
         "| views | turned deg | pipeline | answered | with mm | length MAE mm | read turned |",

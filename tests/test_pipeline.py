@@ -693,7 +693,8 @@ def test_the_leg_angle_is_where_the_ankle_lies_from_the_toe_tips():
 
 def test_a_photo_held_upside_down_is_read_turned_and_measures_as_held_upright(tmp_path):
     """A render from in front of the toes turned 180 deg (the leg running down the picture, as in photos looking
-    down at one's own feet): upright the networks read it 35 mm short; turned back they see what they learnt."""
+    down at one's own feet): upright the networks read it 35 mm short; turned back (the sheet's floor says which
+    way is up) they see what they learnt."""
     import json as json_
 
     from footmesh.eval.measure import true_measurements
@@ -717,6 +718,33 @@ def test_a_photo_held_upside_down_is_read_turned_and_measures_as_held_upright(tm
     error, messages = length_error(MeasureConfig())
     assert any("turned 180 deg" in m for m in messages)
     assert abs(error) < 8.0
-    upright, messages = length_error(MeasureConfig(upside_down_deg=None))
+    upright, messages = length_error(MeasureConfig(upside_down_deg=None, floor_up_turn_deg=None))
     assert not any("turned" in m for m in messages)
     assert abs(upright) > 20.0
+
+
+@pytest.mark.parametrize(("roll_deg", "turns"), [(0.0, 0), (20.0, 0), (90.0, 3), (-90.0, 1), (180.0, 2), (-150.0, 2)])
+def test_the_floors_up_says_how_many_turns_bring_it_up_the_picture(roll_deg, turns):
+    """A camera 45 deg above a foot on the floor, rolled about its line of sight: the turns that undo the roll."""
+    from footmesh.pipeline import floor_up_turns
+    from footmesh.synth.scene import look_at
+
+    K = np.array([[500.0, 0.0, 319.5], [0.0, 500.0, 239.5], [0.0, 0.0, 1.0]])
+    cam_from_floor = look_at(
+        np.array([-400.0, 0.0, 400.0]), np.zeros(3), np.array([0.0, 0.0, 1.0]), math.radians(roll_deg)
+    )
+    mask = np.zeros((480, 640), bool)
+    mask[230:250, 310:330] = True  # the foot where the floor's origin is seen
+    assert floor_up_turns(mask, K, cam_from_floor, MeasureConfig()) == turns
+
+
+def test_the_floor_cannot_say_which_way_is_up_when_seen_straight_down():
+    from footmesh.pipeline import floor_up_turns
+    from footmesh.synth.scene import look_at
+
+    K = np.array([[500.0, 0.0, 319.5], [0.0, 500.0, 239.5], [0.0, 0.0, 1.0]])
+    cam_from_floor = look_at(np.array([20.0, 0.0, 500.0]), np.zeros(3), np.array([1.0, 0.0, 0.0]))
+    mask = np.zeros((480, 640), bool)
+    mask[230:250, 310:330] = True
+    assert floor_up_turns(mask, K, cam_from_floor, MeasureConfig()) is None
+    assert floor_up_turns(mask, K, cam_from_floor, MeasureConfig(floor_up_turn_deg=None)) is None

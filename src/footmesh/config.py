@@ -276,8 +276,18 @@ class MeasureConfig:
     in the photo is measured: the networks learnt feet with the leg rising up the image, and a photo taken straight
     down (whose phone cannot tell which way is up) or held sideways shows them the leg across it, the heel under
     the shin read as past the edge (``pipeline.turned_where_needed``). Empty: never turned."""
+    floor_up_min_tilt_deg: float = 10.0
+    """Where a reference object or the depth shows the floor, its up seen at the foot tells which way up the photo
+    was taken, unless the line of sight to the foot lies within this of straight down (the training renders'
+    cameras stood 10-70 deg from straight above; on the real photos of ``../shared/real/a4`` the floor's up and
+    the leg agreed from 10 deg on, and at 4 deg did not) (``pipeline.floor_up_turns``)."""
+    floor_up_turn_deg: float | None = 60.0
+    """The photo is turned (``pipeline.turned_where_needed``) where the floor's up lies more than this from the
+    picture's up: the training renders' roll (SD 5 deg) and augmentation (+-25 deg) stay well inside. None: the
+    floor never turns it."""
     upside_down_deg: float | None = 150.0
-    """Where the largest foot's ankle lies more than this from straight above its toe tips
+    """Where no floor tells which way up the photo is (``floor_up_min_tilt_deg``) and the largest foot's ankle
+    lies more than this from straight above its toe tips
     (``pipeline.leg_angle_deg``), the feet are taken from the photo turned 180 deg, where that look sees the ankle
     below the toes too (``pipeline.turned_where_needed``). On the renders the networks learnt from (any side and
     height, never from behind the heel; 150 of seed 1) the true angle is at most 147 deg (95 % below 123); on the

@@ -442,10 +442,13 @@ def _run_stages(photo: Photo, side: str, config: MeasureConfig, input: str) -> t
         if reference is not None and config.clear_paper and references.kind(reference.kind).detector == "sheet":
             sheet_px = reference.corners_px
             feet = [_off_the_paper(foot, rgb, sheet_px) for foot in feet]
-    feet = turned_where_needed(feet, rgb if kind != "depth" else None, depth, camera, kind, config, sheet_px)
     floor_seen = None  # with depth, the floor the depth shows: what a reference's floor is to a plain photo
     if kind != "rgb" and config.floor_from_depth:
         floor_seen = depth_floor(depth, K, feet_mask)
+    floor = (reference.K, reference.cam_from_floor) if reference is not None else None
+    if floor_seen is not None:
+        floor = (K, floor_seen)
+    feet = turned_where_needed(feet, rgb if kind != "depth" else None, depth, camera, kind, config, sheet_px, floor)
     timings["reference_s"] = time.perf_counter() - t
 
     if len(feet) > 1 and side != "auto":
@@ -489,13 +492,17 @@ def turned_where_needed(
     kind: str,
     config: MeasureConfig,
     sheet_px: np.ndarray | None = None,
+    floor: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> list[Located]:
     """The feet ``locate_feet`` found (largest first), or those the networks find in the photo turned, where
     upright they see it as they never learnt to (they learnt feet with the leg rising up the picture):
 
-    - the largest foot's ankle below its toes (``MeasureConfig.upside_down_deg``): every foot is taken from the
-      photo turned 180 deg, where that look puts the ankle below the toes too (photos looking down at one's own
-      feet, the legs entering from the bottom);
+    - the floor's up not up the picture at the largest foot (``floor``: (K (3, 3), cam_from_floor (4, 4)) of the
+      floor a reference object or the depth shows, or None; ``floor_up_turns``): every foot is taken from the
+      photo turned so that it is (a phone held sideways or upside down);
+    - without a floor that tells, the largest foot's ankle below its toes (``MeasureConfig.upside_down_deg``):
+      every foot is taken from the photo turned 180 deg, where that look puts the ankle below the toes too
+      (photos looking down at one's own feet, the legs entering from the bottom);
     - a foot past the photo's edge (``refusals.cut_off``): that foot from the first turn of
       ``MeasureConfig.turned_looks`` that keeps it in view (a photo taken straight down or held sideways, the leg
       across the picture and the heel under the shin read as past the edge).
@@ -522,7 +529,11 @@ def turned_where_needed(
         return tuple(back if sheet_px is None else (_off_the_paper(foot, rgb, sheet_px) for foot in back))
 
     first = feet[0]
-    if config.upside_down_deg is not None and leg_angle_deg(first.cues.joints2d_px) > config.upside_down_deg:
+    floor_turns = None if floor is None else floor_up_turns(first.mask, *floor, config)
+    if floor_turns is not None:
+        if floor_turns and _overlapping(first, turned_feet(floor_turns)) is not None:
+            feet = list(turned_feet(floor_turns))
+    elif config.upside_down_deg is not None and leg_angle_deg(first.cues.joints2d_px) > config.upside_down_deg:
         match = _overlapping(first, turned_feet(2))
         # kept only where the turned look too sees the ankle below the toes: else the two looks disagree
         if match is not None and leg_angle_deg(match.cues.joints2d_px) > 90.0:
@@ -545,6 +556,34 @@ def _overlapping(located: Located, others: tuple[Located, ...]) -> Located | Non
         ((int((o.mask & located.mask).sum()), o) for o in others), key=lambda p: p[0], default=(0, None)
     )
     return best if overlap > 0 else None
+
+
+def floor_up_turns(mask: np.ndarray, K: np.ndarray, cam_from_floor: np.ndarray, config: MeasureConfig) -> int | None:
+    """How many quarter turns counter-clockwise bring the floor's up (its normal, seen at the middle of the foot's
+    silhouette ``mask`` (H, W) bool; K (3, 3), ``cam_from_floor`` (4, 4)) nearest the picture's up: 0 where it lies
+    within ``MeasureConfig.floor_up_turn_deg`` of it; None where the floor cannot tell (the line of sight within
+    ``MeasureConfig.floor_up_min_tilt_deg`` of straight down, or the floor not in front of the camera, or
+    ``MeasureConfig.floor_up_turn_deg`` None)."""
+    ys, xs = np.nonzero(mask)
+    if not len(xs) or config.floor_up_turn_deg is None:
+        return None
+    ray = np.linalg.solve(K, [xs.mean(), ys.mean(), 1.0])
+    ray /= np.linalg.norm(ray)
+    origin, normal = cam_from_floor[:3, 3], cam_from_floor[:3, 2]
+    normal = normal if normal @ -origin >= 0 else -normal  # up: towards the camera
+    if math.degrees(math.acos(min(abs(float(normal @ ray)), 1.0))) < config.floor_up_min_tilt_deg:
+        return None
+    depth = float(normal @ origin) / float(normal @ ray)
+    if depth <= 0:
+        return None
+    foot = depth * ray
+    above = foot + 100.0 * normal
+    d = (above[:2] / above[2] - foot[:2] / foot[2]) * np.diag(K)[:2]  # the floor's up in px (K without skew)
+    angle = math.degrees(math.atan2(d[0], -d[1]))  # from the picture's up, clockwise
+    if abs(angle) <= config.floor_up_turn_deg:
+        return 0
+    # a counter-clockwise turn takes the picture's right to its top
+    return int(round(angle / 90.0)) % 4
 
 
 def leg_angle_deg(joints2d_px: np.ndarray) -> float:
