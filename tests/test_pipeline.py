@@ -672,15 +672,19 @@ def test_a_foot_located_in_a_turned_photo_is_put_back_in_the_photos_pixels(quart
 
 
 def test_a_real_foot_whose_leg_lies_across_the_photo_is_read_turned_not_refused_as_cut_off(tmp_path):
-    """A real photo (``../shared/real/a4``, evaluation only) taken straight down with the leg entering from the
-    side: upright, the network reads the heel under the shin as past the photo's edge; turned, it keeps the foot
-    in view, and the foot on the sheet is measured within the adult range."""
+    """A real photo (``../shared/real/a4``, evaluation only) taken nearly straight down with the leg entering from
+    the side: upright, the network reads the heel under the shin as past the photo's edge (refused as cut off);
+    the sheet's floor says the photo was taken sideways, and turned the foot on the sheet is measured within the
+    adult range. Without the floor's say, the cut-off refusal's own turned looks keep it measured too."""
     photo = Path(__file__).resolve().parents[1] / ".." / "shared" / "real" / "a4" / "photos" / "arshoe_barefeet1.jpg"
-    result = measure_photo(photo, tmp_path)
-    assert result["scaled"] and result["scale_source"] == "a4"
-    assert any("turned 90 deg" in message or "turned 270 deg" in message for message in result["messages"])
     low, high = MeasureConfig().plausible_length_mm
-    assert low <= result["measurements"]["stick_length"]["value_mm"] <= high
+    for config in (MeasureConfig(), MeasureConfig(floor_up_turn_deg=None)):
+        result = measure_photo(photo, tmp_path / str(config.floor_up_turn_deg), config=config)
+        assert result["scaled"] and result["scale_source"] == "a4"
+        assert any("turned 90 deg" in message or "turned 270 deg" in message for message in result["messages"])
+        assert low <= result["measurements"]["stick_length"]["value_mm"] <= high
+    with pytest.raises(Refusal, match="cut off"):
+        measure_photo(photo, tmp_path / "upright", config=MeasureConfig(floor_up_turn_deg=None, turned_looks=()))
 
 
 def test_the_leg_angle_is_where_the_ankle_lies_from_the_toe_tips():

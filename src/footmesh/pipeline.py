@@ -730,8 +730,8 @@ def _measure_located(
         raise refusal
     if located.quarter_turns:
         messages.append(
-            f"the foot was read with the photo turned {90 * located.quarter_turns} deg: the networks learnt feet "
-            "with the leg rising up the picture, and upright this one's leg lay across it or below the toes"
+            f"the foot was read with the photo turned {90 * located.quarter_turns} deg counter-clockwise: the "
+            "networks learnt feet with the leg rising up the picture, and this photo was taken another way up"
         )
     t = time.perf_counter()
     init = None

@@ -182,7 +182,8 @@ def located_ious(
     locates in the photo (``pipeline.locate_feet`` at its working resolution, as ``footmesh measure`` runs it: both
     passes of the shipped RGB network, the cut to the joints and the snap to the photo's edges, and the look at the
     photo turned where upright the networks see the ankle below the toes or the foot past the edge,
-    ``pipeline.turned_where_needed``), 0 when it locates none (a refusal, or no foot there)."""
+    ``pipeline.turned_where_needed``, without a reference object's floor), 0 when it locates none (a refusal, or
+    no foot there)."""
     from footmesh.errors import Refusal
     from footmesh.pipeline import locate_feet, turned_where_needed, working_photo
 
