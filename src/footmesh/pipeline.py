@@ -31,7 +31,7 @@ from footmesh.cues.refine import clear_paper, height_image, refine_silhouette
 from footmesh.cues.trim import foot_axes, trim_silhouette
 from footmesh.cues.weights import network_for as cues_network
 from footmesh.errors import InputError, Refusal
-from footmesh.geometry.camera import Camera, rescale_pixels
+from footmesh.geometry.camera import Camera, rescale_pixels, turned_frame
 from footmesh.load import Photo, load_photo
 from footmesh.measure import FootLandmarks, Measurements, measure_foot
 from footmesh.model import skeleton as sk
@@ -272,15 +272,16 @@ def decoder_mesh(
     from footmesh.recon.weights import packaged_weights
 
     net, cfg = decoder_network(kind, packaged_weights(kind, decoder))
-    crop = located.crop
-    crop_rgb = None if kind == "depth" else crop.cut(rgb)
-    crop_depth = None if kind == "rgb" else crop.cut(depth, fill=0.0)
+    crop, quarter_turns = located.crop, located.quarter_turns
+    # turned as the cues' networks saw it (``turned_where_needed``): the decoders too learnt the leg rising up
+    crop_rgb = None if kind == "depth" else turned(crop.cut(rgb), quarter_turns)
+    crop_depth = None if kind == "rgb" else turned(crop.cut(depth, fill=0.0), quarter_turns)
     if crop_depth is not None and not np.any(crop_depth > 0):
         return None
     small_rgb, small_depth = resize_inputs(crop_rgb, crop_depth, cfg.image_size)
     h, w = (rgb if rgb is not None else depth).shape[:2]
     seen = Camera(K, w, h).cropped(crop.x0, crop.y0, crop.side, crop.side)  # the same camera, a padded crop
-    K_small = seen.resized(cfg.image_size, cfg.image_size).K
+    K_small = seen.resized(cfg.image_size, cfg.image_size).turned(quarter_turns).K
     out = predict_batch(
         net,
         None if small_rgb is None else small_rgb[None],
@@ -288,7 +289,7 @@ def decoder_mesh(
         K_small[None],
         None if side == "auto" else np.array([side == "right"]),
     )
-    return out.vertices[0].double().numpy()
+    return out.vertices[0].double().numpy() @ turned_frame(quarter_turns)
 
 
 def decoder_for(kind: str, config: MeasureConfig) -> str:

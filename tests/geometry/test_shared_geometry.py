@@ -9,7 +9,14 @@ import trimesh
 from scipy.spatial.transform import Rotation
 
 from footmesh.geometry.alignment import umeyama, weighted_procrustes
-from footmesh.geometry.camera import Camera, pixel_rays, rescale_pixels, resize_intrinsics, unproject
+from footmesh.geometry.camera import (
+    Camera,
+    pixel_rays,
+    rescale_pixels,
+    resize_intrinsics,
+    turned_frame,
+    unproject,
+)
 from footmesh.geometry.mesh import batch_vertex_normals, face_normals, vertex_normals
 from footmesh.geometry.plane import cam_from_plane, robust_plane
 from footmesh.geometry.rotations import rotation_between, skew
@@ -110,9 +117,10 @@ def test_a_turned_camera_projects_where_the_turn_takes_the_pixels(quarter_turns)
     after = np.rot90(image, quarter_turns)
     turned = camera.turned(quarter_turns)
     assert (turned.width, turned.height) == (after.shape[1], after.shape[0])
-    points = POINTS.copy()
-    for _ in range(quarter_turns % 4):  # the camera frame turns with the image: x' = y, y' = -x
-        points = np.stack([points[:, 1], -points[:, 0], points[:, 2]], axis=1)
+    points = POINTS @ turned_frame(quarter_turns).T  # the camera frame turns with the image
+    np.testing.assert_allclose(points @ turned_frame(quarter_turns), POINTS, atol=1e-12)  # and back
+    if quarter_turns % 4 == 1:
+        np.testing.assert_allclose(points, np.stack([POINTS[:, 1], -POINTS[:, 0], POINTS[:, 2]], axis=1))
     projected = turned.project(points)[0]
     for label, (x, y) in zip((1, 2, 3), projected, strict=True):
         ty, tx = np.argwhere(after == label)[0]

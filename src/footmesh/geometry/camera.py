@@ -61,6 +61,12 @@ def unproject(points_px: np.ndarray, depth: np.ndarray, K: np.ndarray) -> np.nda
     return pixel_rays(points_px, K) * np.asarray(depth, dtype=np.float64)[..., None]
 
 
+def turned_frame(quarter_turns: int) -> np.ndarray:
+    """(3, 3) rotation from a camera's frame to that of its image turned ``quarter_turns`` x 90 deg
+    counter-clockwise (``Camera.turned``): x' = y, y' = -x per turn; points (N, 3) go back with ``p @ R``."""
+    return np.linalg.matrix_power(np.array([[0.0, 1.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 0.0, 1.0]]), quarter_turns % 4)
+
+
 @dataclass(frozen=True, eq=False)
 class Camera:
     """A pinhole camera of one image: intrinsics ``K`` (3, 3) px and the image's ``width`` x ``height`` px."""
@@ -80,12 +86,11 @@ class Camera:
 
     def turned(self, quarter_turns: int) -> Camera:
         """The camera of this image turned ``quarter_turns`` x 90 deg counter-clockwise (``np.rot90``): pixel
-        (x, y) goes to (y, W - 1 - x) per turn, and the camera frame with it (x' = y, y' = -x)."""
+        (x, y) goes to (y, W - 1 - x) per turn, and the camera frame with it (``turned_frame``)."""
         K, width, height = self.K.astype(np.float64), self.width, self.height
-        frame = np.array([[0.0, 1.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])  # x' = y, y' = -x
         for _ in range(quarter_turns % 4):
             pixels = np.array([[0.0, 1.0, 0.0], [-1.0, 0.0, width - 1.0], [0.0, 0.0, 1.0]])
-            K = pixels @ K @ frame.T
+            K = pixels @ K @ turned_frame(1).T
             width, height = height, width
         return Camera(K, width, height)
 
