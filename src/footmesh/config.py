@@ -287,12 +287,12 @@ class MeasureConfig:
     floor never turns it."""
     upside_down_deg: float | None = 150.0
     """Where no floor tells which way up the photo is (``floor_up_min_tilt_deg``) and the largest foot's ankle
-    lies more than this from straight above its toe tips
-    (``pipeline.leg_angle_deg``), the feet are taken from the photo turned 180 deg, where that look sees the ankle
-    below the toes too (``pipeline.turned_where_needed``). On the renders the networks learnt from (any side and
-    height, never from behind the heel; 150 of seed 1) the true angle is at most 147 deg (95 % below 123); on the
-    80 real photos looking down at one's own feet (``../shared/real/rafiansyah``) the networks' is 145-180, and
-    turned their silhouettes cover the feet, not the shins (located-foot IoU 0.418 -> 0.620). None: never turned."""
+    lies more than this from straight above its toe tips (``pipeline.leg_angle_deg``), the feet are taken from the
+    photo turned 180 deg, where that look sees the ankle below the toes too (``pipeline.turned_where_needed``). On
+    the renders the networks learnt from (any side and height, never from behind the heel; 150 of seed 1) the true
+    angle is at most 147 deg (95 % below 123); on the 80 real photos looking down at one's own feet
+    (``../shared/real/rafiansyah``) the networks' is 145-180, and turned their silhouettes cover the feet, not the
+    shins (located-foot IoU 0.418 -> 0.620). None: never turned."""
     max_rgb_end_on: float = 0.643
     """RGB photos (no depth) are refused when the fitted foot's long axis points within acos(this) = 50 deg of the
     line of sight: its length is then foreshortened and poorly seen. ``benchmarks/bench_end_on.py`` (refusal off,
