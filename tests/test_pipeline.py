@@ -752,3 +752,46 @@ def test_the_floor_cannot_say_which_way_is_up_when_seen_straight_down():
     mask[230:250, 310:330] = True
     assert floor_up_turns(mask, K, cam_from_floor, MeasureConfig()) is None
     assert floor_up_turns(mask, K, cam_from_floor, MeasureConfig(floor_up_turn_deg=None)) is None
+
+
+def test_a_foot_a_turned_look_puts_past_the_edge_is_taken_upright_where_it_is_in_view_there(monkeypatch):
+    """The ankle below the toes turns the photo 180 deg; that look agrees but reads the heel past the edge, and
+    upright the foot was in view: the upright look is kept rather than refused as cut off."""
+    from footmesh import pipeline
+    from footmesh.geometry.camera import Camera
+
+    height, width = 60, 80
+    photo = np.arange(height * width * 3, dtype=np.uint8).reshape(height, width, 3)
+    mask = np.zeros((height, width), bool)
+    mask[20:50, 30:50] = True
+    upright = np.tile(np.array([[40.0, 30.0]], np.float32), (18, 1))  # toe tips above the ankle: upside down
+    upright[[3, 6, 9, 12, 15]] = [40.0, 25.0]
+    upright[16], upright[17] = [40.0, 45.0], [40.0, 48.0]
+    past = upright.copy()
+    past[17] = [40.0, height + 10.0]  # the turned look's heel, past the bottom edge
+    for joints in (upright, past):
+        assert pipeline.leg_angle_deg(joints) > 150.0
+
+    def fake_locate(rgb, depth, K, kind, config):
+        turns = next(k for k in range(4) if rgb.shape == np.rot90(photo, k).shape and (rgb == np.rot90(photo, k)).all())
+        joints = upright if turns == 0 else past
+        back = Located(CropBox(0, 0, 80), Cues(mask.astype(np.float32), joints, np.ones(18, np.float32), "rgb"), mask)
+        # the foot as the networks would report it in the turned photo's pixels
+        turned_joints = joints.copy()
+        for _ in range(turns):
+            h, w = np.rot90(photo, _).shape[:2]
+            turned_joints = np.stack([turned_joints[:, 1], w - 1 - turned_joints[:, 0]], axis=1)
+        turned_mask = np.rot90(mask, turns)
+        cues = Cues(turned_mask.astype(np.float32), turned_joints.astype(np.float32), np.ones(18, np.float32), "rgb")
+        return [Located(back.crop, cues, np.ascontiguousarray(turned_mask))]
+
+    monkeypatch.setattr(pipeline, "locate_feet", fake_locate)
+    config = MeasureConfig()
+    first = fake_locate(photo, None, None, "rgb", config)
+    camera = Camera(np.array([[100.0, 0, 39.5], [0, 100.0, 29.5], [0, 0, 1]]), width, height)
+    assert pipeline.refusals.cut_off(mask, past, width, height, config) is not None
+    kept = pipeline.turned_where_needed(first, photo, None, camera, "rgb", config)
+    assert len(kept) == 1 and kept[0].quarter_turns == 0
+    np.testing.assert_allclose(kept[0].cues.joints2d_px, upright)
+    past[17] = upright[17]  # a turned look that keeps the heel in view is kept
+    assert pipeline.turned_where_needed(first, photo, None, camera, "rgb", config)[0].quarter_turns == 2

@@ -505,8 +505,9 @@ def turned_where_needed(
       every foot is taken from the photo turned 180 deg, where that look puts the ankle below the toes too
       (photos looking down at one's own feet, the legs entering from the bottom);
     - a foot past the photo's edge (``refusals.cut_off``): that foot from the first turn of
-      ``MeasureConfig.turned_looks`` that keeps it in view (a photo taken straight down or held sideways, the leg
-      across the picture and the heel under the shin read as past the edge).
+      ``MeasureConfig.turned_looks`` (or upright, for a foot of a turned look) that keeps it in view (a photo
+      taken straight down or held sideways, the leg across the picture and the heel under the shin read as past
+      the edge).
 
     A turned look's foot is the one whose silhouette overlaps the upright one's most; ``sheet_px``: (4, 2) corners
     of a sheet whose paper is cleared from turned looks' silhouettes (``_off_the_paper``), or None. Two feet that
@@ -542,7 +543,8 @@ def turned_where_needed(
     looks = []
     for foot in feet:
         if refusals.cut_off(foot.mask, foot.cues.joints2d_px, w, h, config) is not None:
-            for quarter_turns in (k for k in config.turned_looks if k != foot.quarter_turns):
+            # a foot from a turned look may have been in view upright: that look is tried too
+            for quarter_turns in (k for k in (0, *config.turned_looks) if k != foot.quarter_turns):
                 again = _overlapping(foot, turned_feet(quarter_turns))
                 if again is not None and refusals.cut_off(again.mask, again.cues.joints2d_px, w, h, config) is None:
                     foot = again
