@@ -31,7 +31,7 @@ from footmesh.cues.refine import clear_paper, height_image, refine_silhouette
 from footmesh.cues.trim import foot_axes, trim_silhouette
 from footmesh.cues.weights import network_for as cues_network
 from footmesh.errors import InputError, Refusal
-from footmesh.geometry.camera import Camera, rescale_pixels, turned_frame
+from footmesh.geometry.camera import Camera, pixel_rays, project, rescale_pixels, turned_frame, turned_pixels
 from footmesh.load import Photo, load_photo
 from footmesh.measure import FootLandmarks, Measurements, measure_foot
 from footmesh.model import skeleton as sk
@@ -570,7 +570,7 @@ def floor_up_turns(mask: np.ndarray, K: np.ndarray, cam_from_floor: np.ndarray, 
     ys, xs = np.nonzero(mask)
     if not len(xs) or config.floor_up_turn_deg is None:
         return None
-    ray = np.linalg.solve(K, [xs.mean(), ys.mean(), 1.0])
+    ray = pixel_rays(np.array([xs.mean(), ys.mean()]), K)
     ray /= np.linalg.norm(ray)
     origin, normal = cam_from_floor[:3, 3], cam_from_floor[:3, 2]
     normal = normal if normal @ -origin >= 0 else -normal  # up: towards the camera
@@ -580,8 +580,8 @@ def floor_up_turns(mask: np.ndarray, K: np.ndarray, cam_from_floor: np.ndarray, 
     if depth <= 0:
         return None
     foot = depth * ray
-    above = foot + 100.0 * normal
-    d = (above[:2] / above[2] - foot[:2] / foot[2]) * np.diag(K)[:2]  # the floor's up in px (K without skew)
+    (at, up), _ = project(np.stack([foot, foot + 100.0 * normal]), K)
+    d = up - at  # the floor's up in px
     angle = math.degrees(math.atan2(d[0], -d[1]))  # from the picture's up, clockwise
     if abs(angle) <= config.floor_up_turn_deg:
         return 0
@@ -601,18 +601,15 @@ def leg_angle_deg(joints2d_px: np.ndarray) -> float:
 def _turned_back_located(located: Located, quarter_turns: int, width: int, height: int) -> Located:
     """A foot located in a photo turned ``quarter_turns`` x 90 deg counter-clockwise -> the same foot in the
     ``width`` x ``height`` photo before the turn (its crop: the square the turned one covers)."""
-    crop, k = located.crop, quarter_turns % 4
-    turned_height = height if k % 2 == 0 else width
-    for _ in range(k):
-        # one turn took (x, y) of an image as wide as the turned one is high to (y, that width - 1 - x): undone
-        crop = CropBox(turned_height - crop.y0 - crop.side, crop.x0, crop.side)
-        turned_height = width if turned_height == height else height
-    return Located(
-        crop,
-        turned_back(located.cues, quarter_turns),
-        np.ascontiguousarray(np.rot90(located.mask, -quarter_turns)),
-        quarter_turns=quarter_turns % 4,
-    )
+    back = np.linalg.inv(turned_pixels(width, height, quarter_turns))
+    side = located.crop.side
+    # the turned crop's first and last pixel, back in the photo: the square they span there
+    first = np.array([located.crop.x0, located.crop.y0], np.float64)
+    ends = np.stack([first, first + side - 1]) @ back[:2, :2].T + back[:2, 2]
+    x0, y0 = np.rint(ends.min(axis=0)).astype(int)
+    crop = CropBox(int(x0), int(y0), side)
+    mask = np.ascontiguousarray(np.rot90(located.mask, -quarter_turns))
+    return Located(crop, turned_back(located.cues, quarter_turns), mask, quarter_turns=quarter_turns % 4)
 
 
 def _off_the_paper(located: Located, rgb: np.ndarray, sheet_px: np.ndarray) -> Located:

@@ -15,7 +15,7 @@ from footmesh.config import CuesNetConfig
 from footmesh.cues import Cues
 from footmesh.cues.inputs import network_input
 from footmesh.cues.weights import network_for
-from footmesh.geometry.camera import rescale_pixels
+from footmesh.geometry.camera import rescale_pixels, turned_pixels
 
 MIRROR_AVERAGED_INPUTS: tuple[str, ...] = ("rgb", "depth")
 """Inputs whose network sees each image and its mirror image, and answers their average (``predict_batch``'s
@@ -166,12 +166,8 @@ def turned_back(cues: Cues, quarter_turns: int) -> Cues:
     """Cues of an image turned ``quarter_turns`` x 90 deg counter-clockwise (``turned``) -> the same cues in the
     pixels of the image before the turn: the networks were trained with the leg rising towards the top of the
     image, and a photo held sideways shows them the leg across it."""
-    k = quarter_turns % 4
-    joints = cues.joints2d_px.astype(np.float64)
-    h, w = cues.silhouette.shape  # the turned image's
-    for _ in range(k):
-        # one counter-clockwise turn maps (x, y) of a (W', H') image to (y, W' - 1 - x): undone here, last first
-        h, w = w, h
-        joints = np.stack([w - 1 - joints[:, 1], joints[:, 0]], axis=1)
-    silhouette = np.ascontiguousarray(np.rot90(cues.silhouette, -k))
+    silhouette = np.ascontiguousarray(np.rot90(cues.silhouette, -quarter_turns))
+    height, width = silhouette.shape  # the image's before the turn
+    back = np.linalg.inv(turned_pixels(width, height, quarter_turns))
+    joints = cues.joints2d_px.astype(np.float64) @ back[:2, :2].T + back[:2, 2]
     return replace(cues, silhouette=silhouette, joints2d_px=joints.astype(np.float32))

@@ -61,6 +61,16 @@ def unproject(points_px: np.ndarray, depth: np.ndarray, K: np.ndarray) -> np.nda
     return pixel_rays(points_px, K) * np.asarray(depth, dtype=np.float64)[..., None]
 
 
+def turned_pixels(width: int, height: int, quarter_turns: int) -> np.ndarray:
+    """(3, 3) map of homogeneous pixels of a ``width`` x ``height`` image to those of the image turned
+    ``quarter_turns`` x 90 deg counter-clockwise (``np.rot90``): (x, y) -> (y, W - 1 - x) per turn."""
+    pixels = np.eye(3)
+    for _ in range(quarter_turns % 4):
+        pixels = np.array([[0.0, 1.0, 0.0], [-1.0, 0.0, width - 1.0], [0.0, 0.0, 1.0]]) @ pixels
+        width, height = height, width
+    return pixels
+
+
 def turned_frame(quarter_turns: int) -> np.ndarray:
     """(3, 3) rotation from a camera's frame to that of its image turned ``quarter_turns`` x 90 deg
     counter-clockwise (``Camera.turned``): x' = y, y' = -x per turn; points (N, 3) go back with ``p @ R``."""
@@ -87,11 +97,8 @@ class Camera:
     def turned(self, quarter_turns: int) -> Camera:
         """The camera of this image turned ``quarter_turns`` x 90 deg counter-clockwise (``np.rot90``): pixel
         (x, y) goes to (y, W - 1 - x) per turn, and the camera frame with it (``turned_frame``)."""
-        K, width, height = self.K.astype(np.float64), self.width, self.height
-        for _ in range(quarter_turns % 4):
-            pixels = np.array([[0.0, 1.0, 0.0], [-1.0, 0.0, width - 1.0], [0.0, 0.0, 1.0]])
-            K = pixels @ K @ turned_frame(1).T
-            width, height = height, width
+        K = turned_pixels(self.width, self.height, quarter_turns) @ self.K @ turned_frame(quarter_turns).T
+        width, height = (self.height, self.width) if quarter_turns % 2 else (self.width, self.height)
         return Camera(K, width, height)
 
     def project(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
