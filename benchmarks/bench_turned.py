@@ -16,12 +16,10 @@ the legs from the bottom; README).
 from __future__ import annotations
 
 import argparse
-import json
 import tempfile
 from dataclasses import replace
 from pathlib import Path
 
-import cv2
 import numpy as np
 
 TURNS = (0, 1, 2, 3)
@@ -30,17 +28,12 @@ TURNS = (0, 1, 2, 3)
 def measure_turned(sample: dict, quarter_turns: int, folder: Path, config) -> tuple[str, float | None, bool]:
     """(outcome "mm" / "unscaled" / "refused", length mm or None, read turned) of one render turned."""
     from footmesh.errors import Refusal
-    from footmesh.geometry.camera import Camera
+    from footmesh.eval.measure import turned_sample, write_inputs
     from footmesh.pipeline import measure_photo
 
-    folder.mkdir(parents=True, exist_ok=True)
-    size = sample["rgb"].shape[0]
-    cv2.imwrite(str(folder / "photo.png"), np.ascontiguousarray(np.rot90(sample["rgb"], quarter_turns))[:, :, ::-1])
-    K = Camera(sample["K"], size, size).turned(quarter_turns).K
-    intrinsics = {"fx": K[0, 0], "fy": K[1, 1], "cx": K[0, 2], "cy": K[1, 2], "width": size, "height": size}
-    (folder / "K.json").write_text(json.dumps({k: float(v) for k, v in intrinsics.items()}))
+    paths = write_inputs(turned_sample(sample, quarter_turns), folder, with_depth=False)
     try:
-        result = measure_photo(folder / "photo.png", folder / "out", intrinsics=folder / "K.json", config=config)
+        result = measure_photo(paths["image"], folder / "out", intrinsics=paths["intrinsics"], config=config)
     except Refusal:
         return "refused", None, False
     read_turned = any("turned" in message for message in result["messages"])

@@ -699,23 +699,17 @@ def test_a_photo_held_upside_down_is_read_turned_and_measures_as_held_upright(tm
     """A render from in front of the toes turned 180 deg (the leg running down the picture, as in photos looking
     down at one's own feet): upright the networks read it 35 mm short; turned back (the sheet's floor says which
     way is up) they see what they learnt."""
-    import json as json_
-
-    from footmesh.eval.measure import true_measurements
-    from footmesh.geometry.camera import Camera
+    from footmesh.eval.measure import true_measurements, turned_sample
     from footmesh.synth.render import Renderer
     from footmesh.synth.scene import view_config
 
     sample = Renderer(view_config("front", size=640, reference="a4")).render(4242, 0)
-    cv2.imwrite(str(tmp_path / "photo.png"), np.ascontiguousarray(np.rot90(sample["rgb"], 2))[:, :, ::-1])
-    K = Camera(sample["K"], 640, 640).turned(2).K
-    intrinsics = {"fx": K[0, 0], "fy": K[1, 1], "cx": K[0, 2], "cy": K[1, 2], "width": 640, "height": 640}
-    (tmp_path / "K.json").write_text(json_.dumps({k: float(v) for k, v in intrinsics.items()}))
+    paths = write_inputs(turned_sample(sample, 2), tmp_path, with_depth=False)
     truth = true_measurements(sample["shape"], "right" if int(sample["side"]) else "left")["stick_length"]
 
     def length_error(config: MeasureConfig) -> tuple[float, list[str]]:
         out = tmp_path / str(config.upside_down_deg)
-        result = measure_photo(tmp_path / "photo.png", out, intrinsics=tmp_path / "K.json", config=config)
+        result = measure_photo(paths["image"], out, intrinsics=paths["intrinsics"], config=config)
         assert result["scale_source"] == "a4"
         return result["measurements"]["stick_length"]["value_mm"] - truth, result["messages"]
 

@@ -141,6 +141,20 @@ def write_inputs(sample: dict, folder: Path, with_depth: bool) -> dict:
     return paths
 
 
+def turned_sample(sample: dict, quarter_turns: int) -> dict:
+    """A synthetic sample's photo (and depth) turned ``quarter_turns`` x 90 deg counter-clockwise, with its K: the
+    same scene photographed another way up, for ``write_inputs``."""
+    from footmesh.cues.predict import turned
+    from footmesh.geometry.camera import Camera
+
+    h, w = sample["rgb"].shape[:2]
+    out = {**sample, "rgb": turned(sample["rgb"], quarter_turns)}
+    out["K"] = Camera(np.asarray(sample["K"], np.float64), w, h).turned(quarter_turns).K
+    if "depth" in sample:
+        out["depth"] = turned(sample["depth"], quarter_turns)
+    return out
+
+
 def _write_heic_inputs(sample: dict, folder: Path) -> dict:
     """The photo as an iPhone-like HEIC with its depth inside (see ``rgbd_heic``), and K.json."""
     from PIL import Image
