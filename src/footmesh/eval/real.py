@@ -135,12 +135,12 @@ def evaluate_set(
                 precision,
                 recall,
                 feet,
-                sides,
-                crop_ious,
-                located,
-                measured,
-                answered,
-                measured_sides,
+                predicted_sides=sides,
+                crop_ious=crop_ious,
+                located_ious=located,
+                measured_ious=measured,
+                answered=answered,
+                measured_sides=measured_sides,
             )
         )
         if sheet is not None:
