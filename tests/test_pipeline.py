@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import math
+from dataclasses import replace
 from pathlib import Path
 
 import cv2
@@ -27,6 +28,7 @@ from footmesh.pipeline import (
     _turned_back_located,
     leg_angle_deg,
     measure_photo,
+    pair_sides,
 )
 
 CONTRACT_KEYS = {
@@ -429,6 +431,7 @@ def test_a_photo_of_both_feet_measures_each_and_keeps_the_one_asked_for(tmp_path
     result = measure_photo(paths["image"], tmp_path / "auto", intrinsics=paths["intrinsics"])
     assert [foot["side"] for foot in result["feet"]] == [side, "left" if side == "right" else "right"]
     assert [foot["primary"] for foot in result["feet"]] == [True, False]
+    assert [foot["side_source"] for foot in result["feet"]] == ["pair", "pair"]
     assert result["side"] == side and abs(result["measurements"]["stick_length"]["value_mm"] - truth) < 6.0
     assert any(m.startswith("two feet in view") for m in result["messages"])
     assert (tmp_path / "auto" / "mask.png").is_file() and (tmp_path / "auto" / "mask_1.png").is_file()
@@ -439,9 +442,9 @@ def test_a_photo_of_both_feet_measures_each_and_keeps_the_one_asked_for(tmp_path
     assert (first & second).sum() < 0.05 * min(first.sum(), second.sum())
     other = "left" if side == "right" else "right"
     picked = measure_photo(paths["image"], tmp_path / "other", intrinsics=paths["intrinsics"], side=other)
-    assert picked["side"] == other and "feet" not in picked  # --side: only the foot the network takes for it
+    assert picked["side"] == other and "feet" not in picked  # --side: only that foot
     assert any(
-        m.startswith(f"two feet in view: measured the one the network takes for the {other}")
+        m.startswith(f"two feet in view: measured the {other} one, told by where the two stand")
         for m in picked["messages"]
     )
 
@@ -685,6 +688,53 @@ def test_a_real_foot_whose_leg_lies_across_the_photo_is_read_turned_not_refused_
         assert low <= result["measurements"]["stick_length"]["value_mm"] <= high
     with pytest.raises(Refusal, match="cut off"):
         measure_photo(photo, tmp_path / "upright", config=MeasureConfig(floor_up_turn_deg=None, turned_looks=()))
+
+
+def _feet_seen_from_above(splay_deg: float, step_mm: tuple[float, float], roll_deg: float) -> dict[str, np.ndarray]:
+    """(18, 2) px joints of a left and a right model foot standing on the floor, seen from straight above: each
+    turned ``splay_deg`` outwards, the right one ``step_mm`` (ahead, to the right) of the left; the picture rolled
+    ``roll_deg``."""
+    from footmesh.model.layer import foot_model
+
+    roll = math.radians(roll_deg)
+    rotate = np.array([[math.cos(roll), -math.sin(roll)], [math.sin(roll), math.cos(roll)]])
+    feet = {}
+    for side, sign in (("left", 1.0), ("right", -1.0)):
+        _, joints = foot_model(side=side)
+        xy = joints[0, :, :2].numpy().astype(np.float64)  # foot frame: x ahead, y to the left
+        turn = math.radians(sign * splay_deg)
+        xy = xy @ np.array([[math.cos(turn), math.sin(turn)], [-math.sin(turn), math.cos(turn)]])
+        if side == "right":
+            xy = xy + [step_mm[0], -step_mm[1]]
+        # from straight above, toes up the picture: the person's left is the picture's left
+        feet[side] = np.stack([-xy[:, 1], -xy[:, 0]], axis=1) @ rotate.T + 500.0
+    return feet
+
+
+@given(
+    splay=st.floats(-10.0, 40.0),
+    ahead=st.floats(-80.0, 80.0),
+    apart=st.floats(100.0, 300.0),
+    roll=st.floats(-180.0, 180.0),
+)
+def test_two_feet_side_by_side_are_told_apart_by_where_they_stand(splay, ahead, apart, roll):
+    feet = _feet_seen_from_above(splay, (ahead, apart), roll)
+    config = MeasureConfig()
+    assert pair_sides(feet["left"], feet["right"], config) == ("left", "right")
+    assert pair_sides(feet["right"], feet["left"], config) == ("right", "left")
+    # a mirrored picture (a selfie camera's) swaps them: the rule reads the picture, not the feet's shapes
+    mirrored = {side: joints * [-1.0, 1.0] for side, joints in feet.items()}
+    assert pair_sides(mirrored["left"], mirrored["right"], config) == ("right", "left")
+
+
+def test_feet_one_before_the_other_or_pointing_apart_tell_no_side():
+    config = MeasureConfig()
+    ahead = _feet_seen_from_above(10.0, (300.0, 120.0), 0.0)
+    assert pair_sides(ahead["left"], ahead["right"], config) is None
+    apart = _feet_seen_from_above(50.0, (0.0, 200.0), 30.0)
+    assert pair_sides(apart["left"], apart["right"], config) is None
+    assert pair_sides(apart["left"], apart["right"], replace(config, pair_side_max_turn_deg=120.0)) is not None
+    assert pair_sides(apart["left"], apart["right"], replace(config, pair_side_max_turn_deg=None)) is None
 
 
 def test_the_leg_angle_is_where_the_ankle_lies_from_the_toe_tips():

@@ -452,17 +452,19 @@ def _run_stages(photo: Photo, side: str, config: MeasureConfig, input: str) -> t
     feet = turned_where_needed(feet, rgb if kind != "depth" else None, depth, camera, kind, config, sheet_px, floor)
     timings["reference_s"] = time.perf_counter() - t
 
+    stood = pair_sides(feet[0].cues.joints2d_px, feet[1].cues.joints2d_px, config) if len(feet) == 2 else None
     if len(feet) > 1 and side != "auto":
-        feet, why = _foot_of_side(feet, side)
+        feet, why = _foot_of_side(feet, side, stood)
         notes.append(why)
     outcomes: list[tuple[MeasureResult, _Files, Located, Any, np.ndarray] | Refusal] = []
-    for located in feet:
+    for index, located in enumerate(feet):
         try:
             outcomes.append(
                 _measure_located(
                     photo,
                     located,
-                    side,
+                    side if side != "auto" or stood is None else stood[index],
+                    "given" if side != "auto" else "auto" if stood is None else "pair",
                     config,
                     kind,
                     rgb,
@@ -636,8 +638,14 @@ def floor_end_on_bound(mask: np.ndarray, K: np.ndarray, cam_from_floor: np.ndarr
     return math.sqrt(max(0.0, 1.0 - float(ray @ normal) ** 2))
 
 
-def _foot_of_side(feet: list[Located], side: str) -> tuple[list[Located], str]:
-    """The foot of two that the networks take for ``side`` (their left/right head), and a message saying so."""
+def _foot_of_side(feet: list[Located], side: str, stood: tuple[str, str] | None) -> tuple[list[Located], str]:
+    """The foot of two that is ``side``: by where they stand (``stood``: ``pair_sides``, or None), else the one
+    the networks take for it (their left/right head); and a message saying so."""
+    if stood is not None:
+        return [feet[stood.index(side)]], (
+            f"two feet in view: measured the {side} one, told by where the two stand (a person's left foot stands "
+            "to the left of where the toes point)"
+        )
     probabilities = [foot.cues.right_probability for foot in feet]
     if any(p is None for p in probabilities):
         return feet, f"two feet in view: both measured, the {side} one kept (the networks tell no side here)"
@@ -646,6 +654,28 @@ def _foot_of_side(feet: list[Located], side: str) -> tuple[list[Located], str]:
         f"two feet in view: measured the one the network takes for the {side} foot "
         f"(p(right) {probabilities[pick]:.2f} against {probabilities[1 - pick]:.2f} for the other)"
     )
+
+
+def pair_sides(joints_a: np.ndarray, joints_b: np.ndarray, config: MeasureConfig) -> tuple[str, str] | None:
+    """The sides of two feet standing side by side, from their joints (18, 2) px each: seen from above the floor
+    (as any photo of the floor is), a person's left foot stands to the left of where their toes point. None where
+    the feet do not point the same way within ``MeasureConfig.pair_side_max_turn_deg`` or stand more one before
+    the other than side by side (``MeasureConfig.pair_side_min_lateral``)."""
+    axes = [foot_axes(joints) for joints in (joints_a, joints_b)]
+    if config.pair_side_max_turn_deg is None or axes[0] is None or axes[1] is None:
+        return None
+    if float(axes[0].axis @ axes[1].axis) < math.cos(math.radians(config.pair_side_max_turn_deg)):
+        return None
+    forward = axes[0].axis + axes[1].axis
+    forward /= np.linalg.norm(forward)
+    left = np.array([forward[1], -forward[0]])  # a quarter turn counter-clockwise on the screen (y points down)
+    step = np.asarray(joints_a, np.float64)[: sk.HEEL_BRANCH[0]].mean(axis=0) - np.asarray(joints_b, np.float64)[
+        : sk.HEEL_BRANCH[0]
+    ].mean(axis=0)
+    across, along = float(step @ left), float(step @ forward)
+    if abs(across) < config.pair_side_min_lateral * abs(along):
+        return None
+    return ("left", "right") if across > 0 else ("right", "left")
 
 
 def _both_feet(outcomes: list, reference, requested: str) -> tuple[MeasureResult, _Files]:
@@ -707,6 +737,7 @@ def _measure_located(
     photo: Photo,
     located: Located,
     side: str,
+    side_source: str,
     config: MeasureConfig,
     kind: str,
     rgb: np.ndarray,
@@ -720,8 +751,9 @@ def _measure_located(
 ) -> tuple[MeasureResult, _Files, Located, Any, np.ndarray]:
     """Fit, check and measure one located foot: (result dict, files, the located foot, the fit, the K (3, 3) it
     was fitted with: the photo's, or the reference's where its perspective corrected the focal length).
-    ``floor_seen``: (4, 4) floor frame -> camera that the depth map shows (``cues.floor.depth_floor``), or None;
-    the fit stands the foot on it where no reference object gives one."""
+    ``side``: the side to fit, or "auto"; ``side_source``: what told it (``given``: --side; ``pair``: where the two
+    feet in view stand, ``pair_sides``). ``floor_seen``: (4, 4) floor frame -> camera that the depth map shows
+    (``cues.floor.depth_floor``), or None; the fit stands the foot on it where no reference object gives one."""
     from footmesh.fit import FitConfig, FitInit, canonical_measures, fit_foot, mesh_side_residuals
 
     h, w = rgb.shape[:2]
@@ -735,7 +767,7 @@ def _measure_located(
         )
     t = time.perf_counter()
     init = None
-    side_source = "given" if side != "auto" else "fit"
+    side_source = "fit" if side == "auto" else side_source
     right = located.cues.right_probability
     if side == "auto" and right is not None and max(right, 1.0 - right) >= config.cues_side_confidence:
         side, side_source = ("right" if right >= 0.5 else "left"), "cues"
