@@ -121,6 +121,36 @@ def test_floor_frame_is_the_objects():
     assert np.isnan(obj.floor_points(np.array([[sample["K"][0, 2], -1e6]]), sample["K"])).all()  # above the horizon
 
 
+@pytest.mark.parametrize("kind", ["a4", "card"])
+@pytest.mark.parametrize("light", [(1.2, 0.92, 0.65), (0.85, 1.0, 1.2)], ids=["warm", "cool"])
+def test_an_object_under_coloured_light_is_found_as_under_white(kind, light):
+    """Indoor lamps leave a photo orange, shade blue: a white sheet is then no longer grey, nor its edges the
+    colour steps they were; the search white-balances the photo first (``quads.white_balanced``)."""
+    for sample in _scenes(kind, 2):
+        lit = np.clip(sample["rgb"].astype(np.float32) * np.array(light, np.float32), 0, 255).astype(np.uint8)
+        _check_found(detect_reference(lit, sample["K"], exclude_mask=_foot_and_leg(sample)), sample, kind)
+
+
+def test_white_balance_greys_the_brightest_surface_and_keeps_the_rest_in_proportion():
+    rng = np.random.default_rng(0)
+    image = rng.uniform(0.1, 0.5, (64, 64, 3)).astype(np.float32)
+    image[20:40, 20:40] = 0.9  # white paper
+    light = np.array([1.0, 0.85, 0.6], np.float32)
+    balanced = quad_tests.white_balanced(image * light)
+    np.testing.assert_allclose(balanced[30, 30], [0.9, 0.9, 0.9], rtol=1e-5)
+    np.testing.assert_allclose(balanced[5, 5], image[5, 5], rtol=1e-5)
+    # a brightest patch of strong colour is not taken for the light: no channel gains more than MAX_WHITE_GAIN
+    yellow = image.copy()
+    yellow[20:40, 20:40] = [0.9, 0.85, 0.2]
+    assert (quad_tests.white_balanced(yellow) / yellow).max() <= quad_tests.MAX_WHITE_GAIN + 1e-6
+    # the foot masked out does not count: its lit skin is no white
+    skin = image.copy()
+    skin[0:10, 0:64] = [0.98, 0.75, 0.6]
+    valid = np.ones((64, 64), bool)
+    valid[0:10] = False
+    np.testing.assert_allclose(quad_tests.white_balanced(skin, valid)[30, 30], [0.9, 0.9, 0.9], rtol=1e-5)
+
+
 def test_foot_standing_on_the_sheet():
     """The foot hides part of the sheet (and maybe a corner): the sides it leaves in view still give the sheet,
     with or without the foot's mask."""
@@ -366,12 +396,18 @@ def test_bad_input_is_refused_clearly():
     assert detect_reference(image, K) is None  # a blank image is no error, and no object
 
 
-def test_the_searchs_remembered_profiles_change_nothing():
+def test_the_searchs_remembered_profiles_change_nothing(monkeypatch):
     """``search_reference`` reads each line's profile once (``remembered_profiles``, for its second pass without the
     mask): the same objects, field for field, and the same reasons as the search that reads them again."""
     import dataclasses
 
+    from footmesh.cues.reference import search
     from footmesh.cues.reference.sides import _median
+
+    def forgetful(rgb, K, exclude_mask):
+        with monkeypatch.context() as m:
+            m.setattr(search, "_search_image", search._search_image.__wrapped__)
+            return search_reference(rgb, K, exclude_mask=exclude_mask)
 
     sample = _scenes("a4", 1)[0]
     spread = _foot_and_leg(sample).copy()
@@ -379,7 +415,7 @@ def test_the_searchs_remembered_profiles_change_nothing():
     cut = sample["rgb"][:, : int(sample["ref_corners2d"][:, 0].max()) - 20].copy()  # nothing found: a reason
     for rgb, mask in ((sample["rgb"], spread), (cut, None)):
         remembered = search_reference(rgb, sample["K"], exclude_mask=mask)
-        again = search_reference.__wrapped__(rgb, sample["K"], exclude_mask=mask)  # without the memory
+        again = forgetful(rgb, sample["K"], exclude_mask=mask)  # without the memory
         assert (remembered.rejected, remembered.rejected_area) == (again.rejected, again.rejected_area)
         assert (remembered.found is None) == (again.found is None)
         if remembered.found is not None:

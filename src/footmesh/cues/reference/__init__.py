@@ -7,6 +7,8 @@ docs/reference.md.
 
 Steps:
 
+0. White balance: the photo's channels scaled so that its brightest surfaces are grey (``quads.white_balanced``):
+   the colour tests read the surfaces, not the light.
 1. Marker: ``cv2.aruco.ArucoDetector`` (DICT_4X4_50, id 0) on the image, else on its mirror image (a mirrored
    photo, or a mirrored print, still gives a metric plane).
 2. Sheet and card: candidate quadrilaterals from the outlines of regions at several levels of whiteness (sheet),

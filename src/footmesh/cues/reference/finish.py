@@ -122,6 +122,8 @@ def _finish_quad(
             rejected.append(why)
 
     h, w = blurred.shape[:2]
+    if not _inside(quad, h, w, margin=-max(h, w)):  # a completion's guess far off: nothing there to read
+        return reject("a corner lies far beyond the edge of the photo")
     refined = _refine_sides(quad, blurred, valid, radii=(first_radius, 1.5), first=first)
     if refined is None:
         return reject("a side's edge could not be traced along it")

@@ -124,6 +124,15 @@ guided photos."""
 PAPER_MAX_SATURATION = 0.3
 """An A4 sheet is white: (max - min) / max of its colour just inside its sides stays below this (and it is
 brighter than the floor around it)."""
+WHITE_SHARE = 0.01
+"""The image is white-balanced on the mean colour of this brightest share of its pixels (a sheet in view is
+among them; without one, highlights, which take the light's colour): under warm indoor light a white sheet is
+orange, beyond ``PAPER_MAX_SATURATION``, and its sides' colour steps weaker."""
+MAX_WHITE_GAIN = 2.0
+"""A channel is brightened at most this much by the white balance (a brightest patch of strong colour, a
+yellow wall, is not taken for the light's)."""
+WHITE_MIN_GAIN = 1.05
+"""Below this gain on every channel the light is taken for white and the photo searched as it is."""
 MIN_CONTRAST = 0.04
 """Smallest colour change across a side (image values 0..1, Euclidean over RGB) that counts as an edge."""
 DISTANCE_RANGE_MM = (80.0, 5000.0)

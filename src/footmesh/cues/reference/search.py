@@ -15,7 +15,14 @@ from footmesh.cues.reference.marker import _detect_marker, _overlaps
 from footmesh.cues.reference.objects import ReferenceObject, ReferenceSearch
 from footmesh.cues.reference.params import _KERNEL5, BLUR_SIGMA_PX, KINDS, MARKER_SHEET_SCALE, RECTANGLES, SHEETS
 from footmesh.cues.reference.pose import seen_with
-from footmesh.cues.reference.quads import _candidate_groups, _canonical, _check_image, _check_intrinsics, _signed_area
+from footmesh.cues.reference.quads import (
+    _candidate_groups,
+    _canonical,
+    _check_image,
+    _check_intrinsics,
+    _signed_area,
+    white_balanced,
+)
 from footmesh.cues.reference.sides import _blank_inside, _fit_sides, _paper_beside, remembered_profiles
 
 
@@ -32,7 +39,6 @@ def detect_reference(
     return search_reference(rgb, K, kinds, exclude_mask, focal_prior_log_sd, distance_prior).found
 
 
-@remembered_profiles()  # the fallback without the mask reads most of the same sides again
 def search_reference(
     rgb: np.ndarray,
     K: np.ndarray,
@@ -108,6 +114,28 @@ def _search(
             raise ValueError(f"exclude_mask must be (H, W) = {(h, w)} like the image, got {exclude_mask.shape}")
         # edges right next to the masked object are its own outline, not the reference's
         valid = cv2.dilate(exclude_mask.astype(np.uint8), _KERNEL5) == 0
+    # the colour tests (white paper, a card's chroma) read the surfaces, not the light; where the brightest
+    # surface is no white but a coloured wall, the photo as it is is searched too
+    balanced = white_balanced(image, valid)
+    searched = _search_image(balanced, K, kinds, exclude_mask, valid, focal_prior_log_sd)
+    if searched.found is None and balanced is not image:
+        again = _search_image(image, K, kinds, exclude_mask, valid, focal_prior_log_sd)
+        if again.found is not None:
+            return again
+    return searched
+
+
+@remembered_profiles()  # the fallback without the mask reads most of the same sides again
+def _search_image(
+    image: np.ndarray,
+    K: np.ndarray,
+    kinds: tuple[str, ...],
+    exclude_mask: np.ndarray | None,
+    valid: np.ndarray | None,
+    focal_prior_log_sd: float,
+) -> ReferenceSearch:
+    """``_search`` in one (H, W, 3) float32 image (``valid``: where its edges count, from ``exclude_mask``)."""
+    h, w = image.shape[:2]
     blurred = cv2.GaussianBlur(image, (0, 0), BLUR_SIGMA_PX)
     found, markers = _detect_marker(
         image, blurred, K, valid, bool(references.with_detector("marker", kinds)), focal_prior_log_sd
