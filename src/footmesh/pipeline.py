@@ -806,8 +806,23 @@ def _measure_located(
     if reference is None and (refusal := refusals.implausible_length(length_mm, config)) is not None:
         raise refusal
     if reference is not None:
-        separation = float(np.linalg.norm(fit.vertices_cam.mean(axis=0) - reference.centre_mm))
-        contradicted = refusals.contradicted_reference(reference.kind, length_mm, fit.quality, config, separation)
+
+        def contradiction(fit) -> str | None:
+            length_mm = canonical_measures(fit.shape)[0]
+            separation = float(np.linalg.norm(fit.vertices_cam.mean(axis=0) - reference.centre_mm))
+            return refusals.contradicted_reference(reference.kind, length_mm, fit.quality, config, separation)
+
+        contradicted = contradiction(fit)
+        if contradicted is not None and refusals.implausible_length(length_mm, config) is not None:
+            # a fit that went wrong is tried again before the object is: held flat on its floor (the leg hiding
+            # the heel lets a fit tip the foot and shrink it)
+            flat = fitted(reference, flat=True)
+            if contradiction(flat) is None:
+                fit, fitted_flat, contradicted = flat, True, None
+                messages.append(
+                    f"the foot was fitted lying flat on the floor that {references.kind(reference.kind).described} "
+                    "shows (a first fit made it no adult's length: the heel may be hidden behind the leg)"
+                )
         if contradicted is not None:
             messages.append(contradicted)
             reference = None
@@ -825,7 +840,12 @@ def _measure_located(
     if seen_reference is not None:
         # the floor the reference shows, not the fit, says how end-on a foot lying on it can be seen
         floor = (seen_reference.kind, floor_end_on_bound(located.mask, seen_reference.K, seen_reference.cam_from_floor))
-    if reference is not None and floor is not None and refusals.heel_hidden(_end_on(fit), floor[1], floor[0], config):
+    if (
+        reference is not None
+        and floor is not None
+        and not fitted_flat
+        and refusals.heel_hidden(_end_on(fit), floor[1], floor[0], config)
+    ):
         # the fit lifted the foot off the floor the reference shows (as when the leg hides the heel): before
         # refusing, fit again held upright on it (the photo guide asks for the foot flat on the floor)
         flat = fitted(reference, flat=True)
