@@ -714,7 +714,9 @@ def _both_feet(outcomes: list, reference, requested: str) -> tuple[MeasureResult
             )
         )
         if outcome is not primary:
-            overlay = draw_overlay(overlay, located, fit, fit_K, reference)
+            # the reference outlined only where this foot was measured with it (not one it found no adult's foot on)
+            used = reference if reference is not None and other.scale_source == reference.kind else None
+            overlay = draw_overlay(overlay, located, fit, fit_K, used)
             masks.append((name, other_files.mask))
     result = replace(result, feet=tuple(feet))
     fitted_sides = [foot.side for foot in feet if foot.measured]
