@@ -456,15 +456,22 @@ def _run_stages(photo: Photo, side: str, config: MeasureConfig, input: str) -> t
     if len(feet) > 1 and side != "auto":
         feet, why = _foot_of_side(feet, side, stood)
         notes.append(why)
+    # each foot's side to fit and what told it ("auto": the cues, the decoder or the fit tell it)
+    if side != "auto":
+        sides = [(side, "given")] * len(feet)
+    elif stood is not None:
+        sides = [(s, "pair") for s in stood]
+    else:
+        sides = [("auto", "fit")] * len(feet)
     outcomes: list[tuple[MeasureResult, _Files, Located, Any, np.ndarray] | Refusal] = []
-    for index, located in enumerate(feet):
+    for located, (foot_side, side_source) in zip(feet, sides, strict=True):
         try:
             outcomes.append(
                 _measure_located(
                     photo,
                     located,
-                    side if side != "auto" or stood is None else stood[index],
-                    "given" if side != "auto" else "auto" if stood is None else "pair",
+                    foot_side,
+                    side_source,
                     config,
                     kind,
                     rgb,
@@ -669,9 +676,8 @@ def pair_sides(joints_a: np.ndarray, joints_b: np.ndarray, config: MeasureConfig
     forward = axes[0].axis + axes[1].axis
     forward /= np.linalg.norm(forward)
     left = np.array([forward[1], -forward[0]])  # a quarter turn counter-clockwise on the screen (y points down)
-    step = np.asarray(joints_a, np.float64)[: sk.HEEL_BRANCH[0]].mean(axis=0) - np.asarray(joints_b, np.float64)[
-        : sk.HEEL_BRANCH[0]
-    ].mean(axis=0)
+    forefeet = [np.asarray(joints, np.float64)[: sk.HEEL_BRANCH[0]].mean(axis=0) for joints in (joints_a, joints_b)]
+    step = forefeet[0] - forefeet[1]
     across, along = float(step @ left), float(step @ forward)
     if abs(across) < config.pair_side_min_lateral * abs(along):
         return None
@@ -754,8 +760,9 @@ def _measure_located(
     """Fit, check and measure one located foot: (result dict, files, the located foot, the fit, the K (3, 3) it
     was fitted with: the photo's, or the reference's where its perspective corrected the focal length).
     ``side``: the side to fit, or "auto"; ``side_source``: what told it (``given``: --side; ``pair``: where the two
-    feet in view stand, ``pair_sides``). ``floor_seen``: (4, 4) floor frame -> camera that the depth map shows
-    (``cues.floor.depth_floor``), or None; the fit stands the foot on it where no reference object gives one."""
+    feet in view stand, ``pair_sides``; ``fit`` with "auto", unless the cues or the decoder tell it).
+    ``floor_seen``: (4, 4) floor frame -> camera that the depth map shows (``cues.floor.depth_floor``), or None;
+    the fit stands the foot on it where no reference object gives one."""
     from footmesh.fit import FitConfig, FitInit, canonical_measures, fit_foot, mesh_side_residuals
 
     h, w = rgb.shape[:2]
@@ -769,7 +776,6 @@ def _measure_located(
         )
     t = time.perf_counter()
     init = None
-    side_source = "fit" if side == "auto" else side_source
     right = located.cues.right_probability
     if side == "auto" and right is not None and max(right, 1.0 - right) >= config.cues_side_confidence:
         side, side_source = ("right" if right >= 0.5 else "left"), "cues"
@@ -809,10 +815,11 @@ def _measure_located(
         raise refusal
     if reference is not None:
 
-        def contradiction(fit) -> str | None:
-            length_mm = canonical_measures(fit.shape)[0]
-            separation = float(np.linalg.norm(fit.vertices_cam.mean(axis=0) - reference.centre_mm))
-            return refusals.contradicted_reference(reference.kind, length_mm, fit.quality, config, separation)
+        def contradiction(candidate) -> str | None:
+            """Why the fit ``candidate`` says the reference was something else, or None."""
+            separation = float(np.linalg.norm(candidate.vertices_cam.mean(axis=0) - reference.centre_mm))
+            candidate_mm = canonical_measures(candidate.shape)[0]
+            return refusals.contradicted_reference(reference.kind, candidate_mm, candidate.quality, config, separation)
 
         contradicted = contradiction(fit)
         if contradicted is not None and refusals.implausible_length(length_mm, config) is not None:
