@@ -56,27 +56,24 @@ VERSIONS: dict[str, Callable[[np.ndarray], np.ndarray]] = {
 """Each version of a photo (BGR uint8 in, BGR uint8 out)."""
 
 
-def measure_versions(bgr: np.ndarray, folder: Path, intrinsics: dict | None = None) -> dict[str, float | None]:
-    """Length (mm; None where unscaled or refused) of every version of one photo; ``intrinsics``: K.json's
-    fields for the photo as it is (scaled with the photo for half size), or None (the photo's own guess)."""
-    import json
-
+def measure_versions(bgr: np.ndarray, folder: Path, K: np.ndarray | None = None) -> dict[str, float | None]:
+    """Length (mm; None where unscaled or refused) of every version of one photo; ``K``: (3, 3) intrinsics of the
+    photo as it is (resized with it for half size, given as K.json), or None (the photo's own guess)."""
     from footmesh.errors import Refusal
+    from footmesh.eval.measure import write_inputs
+    from footmesh.geometry.camera import Camera
     from footmesh.pipeline import measure_photo
 
     lengths: dict[str, float | None] = {}
     for index, (name, change) in enumerate(VERSIONS.items()):
         image = change(bgr)
-        path = folder / f"{index}.png"
-        cv2.imwrite(str(path), image)
-        k_path = None
-        if intrinsics is not None:
-            factor = image.shape[1] / bgr.shape[1]
-            k = {key: value * factor if key in ("fx", "fy") else value for key, value in intrinsics.items()}
-            k.update(cx=(k["cx"] + 0.5) * factor - 0.5, cy=(k["cy"] + 0.5) * factor - 0.5)
-            k.update(width=image.shape[1], height=image.shape[0])
-            k_path = folder / f"{index}.K.json"
-            k_path.write_text(json.dumps(k))
+        if K is None:
+            path, k_path = folder / f"{index}.png", None
+            cv2.imwrite(str(path), image)
+        else:
+            camera = Camera(np.asarray(K, np.float64), bgr.shape[1], bgr.shape[0]).resized(*image.shape[1::-1])
+            paths = write_inputs({"rgb": image[..., ::-1], "K": camera.K}, folder / str(index), with_depth=False)
+            path, k_path = paths["image"], paths["intrinsics"]
         try:
             result = measure_photo(path, folder / f"out{index}", intrinsics=k_path)
         except Refusal:
@@ -138,13 +135,11 @@ def render_rows(n: int, views: str, seed: int) -> list[tuple[str, dict[str, floa
         for i in range(n):
             sample = renderer.render(seed, i)
             side = "right" if int(sample["side"]) else "left"
-            K = sample["K"]
-            k = {"fx": K[0, 0], "fy": K[1, 1], "cx": K[0, 2], "cy": K[1, 2], "width": 640, "height": 640}
             folder = Path(tmp) / str(i)
             folder.mkdir()
             bgr = cv2.cvtColor(sample["rgb"], cv2.COLOR_RGB2BGR)
             truth = true_measurements(sample["shape"], side)["stick_length"]
-            rows.append((f"{views} {i}", measure_versions(bgr, folder, {a: float(b) for a, b in k.items()}), truth))
+            rows.append((f"{views} {i}", measure_versions(bgr, folder, sample["K"]), truth))
     return rows
 
 

@@ -522,9 +522,12 @@ def turned_where_needed(
     of a sheet whose paper is cleared from turned looks' silhouettes (``_off_the_paper``), or None. Two feet that
     are one turned foot are kept once."""
     h, w = (rgb if rgb is not None else depth).shape[:2]
+    upright = tuple(feet)
 
     @functools.cache
     def turned_feet(quarter_turns: int) -> tuple[Located, ...]:
+        if quarter_turns == 0:
+            return upright  # located already
         try:
             with torch.inference_mode():
                 found = locate_feet(
@@ -603,7 +606,7 @@ def leg_angle_deg(joints2d_px: np.ndarray) -> float:
     joints (18, 2) px: where the leg rises in the picture. The networks learnt it below ``MeasureConfig.
     upside_down_deg``."""
     joints = np.asarray(joints2d_px, dtype=np.float64)
-    v = joints[sk.HEEL_BRANCH[0]] - joints[[tip for _, _, tip in sk.TOE_BRANCHES]].mean(axis=0)
+    v = joints[sk.HEEL_BRANCH[0]] - joints[list(sk.TOE_TIPS)].mean(axis=0)
     return float(np.degrees(np.arctan2(abs(v[0]), -v[1])))
 
 

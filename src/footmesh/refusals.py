@@ -18,6 +18,7 @@ import numpy as np
 from footmesh import references
 from footmesh.config import MeasureConfig
 from footmesh.errors import Refusal
+from footmesh.model.skeleton import TOE_TIPS
 
 if TYPE_CHECKING:  # the fit (and torch) is not needed to judge its numbers
     from footmesh.fit import FitQuality
@@ -25,8 +26,6 @@ if TYPE_CHECKING:  # the fit (and torch) is not needed to judge its numbers
 FLAT_AND_IN_VIEW = "retake it from above and to the side, the whole foot flat on the floor"
 """What to retake when the fitted foot does not match the photo."""
 FROM_THE_SIDE = "photograph it from the side and above"
-LENGTH_TIPS = (3, 6, 9, 12, 15)
-"""The toe tips (``DESIGN.md`` joint order)."""
 HEEL = 17
 LENGTH_ENDS = (3, 6, 17)
 """Big toe tip, second toe tip, heel: the ends of the foot's length."""
@@ -52,7 +51,7 @@ def cut_off(mask: np.ndarray, joints_px: np.ndarray, width: int, height: int, co
     only silhouette pixels (``mask`` (H, W) bool) on the edge near the foot's joints (``joints_px`` (18, 2),
     within ``config.foot_zone_margin`` of the foot's length around their hull) count, or a toe tip or the heel
     beyond the edge."""
-    length_px = float(np.linalg.norm(joints_px[list(LENGTH_TIPS)] - joints_px[HEEL], axis=1).max())
+    length_px = float(np.linalg.norm(joints_px[list(TOE_TIPS)] - joints_px[HEEL], axis=1).max())
     hull = cv2.convexHull(np.round(joints_px).astype(np.int32))
     reach = max(int(round(config.foot_zone_margin * length_px)), 0)
     # the zone grown by ``reach`` stays inside the hull's box grown by as much: drawn and dilated in that window

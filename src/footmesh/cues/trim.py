@@ -19,7 +19,6 @@ import numpy as np
 
 from footmesh.model import skeleton as sk
 
-_TOE_TIPS = [tip for _, _, tip in sk.TOE_BRANCHES]
 _HEEL = sk.HEEL_BRANCH[1]
 _BIG_TOE_MTP, _LITTLE_TOE_MTP = sk.TOE_BRANCHES[0][0], sk.TOE_BRANCHES[-1][0]
 
@@ -72,12 +71,12 @@ def foot_axes(joints2d_px: np.ndarray, config: TrimConfig | None = None) -> Foot
     config = config if config is not None else TrimConfig()
     joints = np.asarray(joints2d_px, dtype=np.float64)
     heel = joints[_HEEL]
-    axis = joints[_TOE_TIPS].mean(axis=0) - heel
+    axis = joints[list(sk.TOE_TIPS)].mean(axis=0) - heel
     norm = float(np.linalg.norm(axis))
     if not np.all(np.isfinite(joints)) or norm < config.min_size_px:
         return None
     axis /= norm
-    length = float(((joints[_TOE_TIPS] - heel) @ axis).max())
+    length = float(((joints[list(sk.TOE_TIPS)] - heel) @ axis).max())
     width = float(np.linalg.norm(joints[_BIG_TOE_MTP] - joints[_LITTLE_TOE_MTP]))
     return FootAxes(heel, axis, length, max(length, config.width_to_length * width))
 

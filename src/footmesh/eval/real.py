@@ -230,14 +230,16 @@ def measured_ious(photo: Photo, mask: np.ndarray, feet: tuple[str, ...]) -> Meas
             for entry in entries
             if entry["measured"]
         ]
-    sides = []
+    ious, sides = [], []
     for side in feet:
         truth = mask == MASK_VALUE[side]
-        best = max(written, key=lambda pair: mask_scores(pair[1], truth)[0], default=None)
-        sides.append(best[0] if best is not None and (best[1] & truth).any() else "")
+        scored = ((mask_scores(m, truth)[0], s, m) for s, m in written)
+        iou, said, best = max(scored, key=lambda entry: entry[0], default=(0.0, "", None))
+        ious.append(iou)
+        sides.append(said if best is not None and (best & truth).any() else "")
     masks = [m for _, m in written]
     union = np.any(masks, axis=0) if masks else np.zeros(mask.shape, bool)
-    return Measured(True, _best_ious(masks, mask, feet), tuple(sides), union)
+    return Measured(True, tuple(ious), tuple(sides), union)
 
 
 def _best_ious(found: list[np.ndarray], mask: np.ndarray, feet: tuple[str, ...]) -> tuple[float, ...]:

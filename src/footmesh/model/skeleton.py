@@ -49,6 +49,8 @@ PARENTS: tuple[int, ...] = (-1, 0, 1, 2, 0, 4, 5, 0, 7, 8, 0, 10, 11, 0, 13, 14,
 
 TOE_BRANCHES: tuple[tuple[int, int, int], ...] = tuple((1 + 3 * k, 2 + 3 * k, 3 + 3 * k) for k in range(5))
 """(proximal, distal, tip) joint indices of toes 1..5."""
+TOE_TIPS: tuple[int, ...] = tuple(tip for _, _, tip in TOE_BRANCHES)
+"""The tips of toes 1..5."""
 HEEL_BRANCH: tuple[int, int] = (16, 17)
 """(ankle, heel) joint indices."""
 BRANCHES: tuple[tuple[int, ...], ...] = (*TOE_BRANCHES, HEEL_BRANCH)
