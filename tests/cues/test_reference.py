@@ -424,3 +424,24 @@ def test_the_searchs_remembered_profiles_change_nothing(monkeypatch):
     values = np.random.default_rng(0).random(101)
     for n in (1, 2, 7, 100, 101):
         assert _median(values[:n]) == np.median(values[:n])
+
+
+def test_a_side_under_the_feet_mask_counts_where_its_own_two_colours_meet():
+    """The feet's mask leaks onto shaded paper beside the foot on real photos (``arshoe_barefeet_1`` turned 90 deg:
+    the sheet's side beside the shin masked, its corner 23 px off). Where the mask covers the side but the paper
+    and the floor meet across it, the edge is the side's; where the foot covers the side, it is not."""
+    from footmesh.cues.reference.sides import _side_edge_points
+
+    image = np.full((240, 320, 3), (0.25, 0.22, 0.2), np.float32)  # a dark floor
+    cv2.rectangle(image, (40, 30), (280, 180), (0.9, 0.9, 0.88), -1)  # the sheet, bottom side at y = 180
+    cv2.rectangle(image, (130, 120), (180, 239), (0.8, 0.6, 0.5), -1)  # the shin across the bottom side
+    blurred = cv2.GaussianBlur(image, (0, 0), 0.75)
+    mask = np.zeros(image.shape[:2], bool)
+    mask[110:, 120:250] = True  # the foot's mask, leaking 70 px right of the shin over paper and floor
+    p, q = np.array([40.5, 180.0]), np.array([280.5, 180.0])
+    edges, masked = _side_edge_points(blurred, p, q, 3.0, ~mask)
+    assert masked and edges is not None
+    x = edges.points[:, 0]
+    assert np.all(np.abs(edges.points[:, 1] - 180.5) < 0.5)  # the fill covers row 180
+    assert np.any((x > 190) & (x < 245)), "the side's edge under the leaked mask"
+    assert not np.any((x > 132) & (x < 178)), "the shin's"

@@ -91,13 +91,15 @@ def _blank_inside(quad: np.ndarray, lines: list[_Line], valid: np.ndarray, blurr
 class _Profiles:
     """Edges across a line at positions along it: ``points`` (S, 2) px, ``found`` (S,) bool, ``min_step`` the
     smallest colour change across the line that counted, the colours ``ends`` (S, 2, 3) read at both ends of
-    each profile (-n, +n), and ``usable`` (S,) bool: not excluded by the caller's mask."""
+    each profile (-n, +n), ``usable`` (S,) bool: not excluded by the caller's mask, and ``edge`` (S,) bool: an
+    edge whether the mask excludes it or not (``found`` is ``edge & usable``)."""
 
     points: np.ndarray
     found: np.ndarray
     min_step: float
     ends: np.ndarray
     usable: np.ndarray
+    edge: np.ndarray
 
 
 _READ_PROFILES: ContextVar[dict | None] = ContextVar("footmesh_reference_profiles", default=None)
@@ -148,15 +150,14 @@ def _profiles(
         edges = read[key]
     if edges is None:
         return None
-    points, found, min_step, ends = edges
+    points, edge, min_step, ends = edges
     usable = np.ones(len(along), dtype=bool)
     if valid is not None:
         h, w = valid.shape
         ix = np.clip(np.rint(points[:, 0]).astype(int), 0, w - 1)
         iy = np.clip(np.rint(points[:, 1]).astype(int), 0, h - 1)
         usable = valid[iy, ix]
-        found = found & usable  # not in place: the array may be a remembered one
-    return _Profiles(points, found, min_step, ends, usable)
+    return _Profiles(points, edge & usable, min_step, ends, usable, edge)
 
 
 def _edges_across(
@@ -245,7 +246,10 @@ def _side_edge_points(
         return np.linalg.norm(x - c, axis=1) < tol
 
     missing = ~prof.found & prof.usable & ((like(a, near) & like(b, near)) | (like(a, far) & like(b, far)))
-    return _SideEdges(prof.points[prof.found], len(along), int(missing.sum()), prof.min_step, near, far), masked
+    # the mask is the feet's, grown: where it lies over the side but the side's own two colours meet there (the
+    # paper's and the floor's), the edge is the side's (real photos: the foot's mask leaks onto shaded paper)
+    found = prof.found | (prof.edge & ~prof.usable & like(a, near) & like(b, far))
+    return _SideEdges(prof.points[found], len(along), int(missing.sum()), prof.min_step, near, far), masked
 
 
 def _side_line(
