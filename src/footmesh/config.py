@@ -285,6 +285,14 @@ class MeasureConfig:
     """The photo is turned (``pipeline.turned_where_needed``) where the floor's up lies more than this from the
     picture's up: the training renders' roll (SD 5 deg) and augmentation (+-25 deg) stay well inside. None: the
     floor never turns it."""
+    straight_down_ankle_up: bool = True
+    """Where the floor a reference object or the depth shows is seen straight down (within
+    ``floor_up_min_tilt_deg``: its up cannot say which way up the photo is), the feet are taken from the photo
+    turned so that the largest foot's ankle lies above its toes (``pipeline.turned_where_needed``): seen straight
+    down no view is from the side, the shin rises towards the camera over the heel, and from above the toes the
+    networks learnt it up the picture. Real photos of a foot on A4 turned sideways (``benchmarks/bench_repeat.py``)
+    were read with the leg across the picture, 30-50 mm off or unscaled, before. False: only the ankle below the
+    toes turns such a photo (``upside_down_deg``)."""
     upside_down_deg: float | None = 150.0
     """Where no floor tells which way up the photo is (``floor_up_min_tilt_deg``) and the largest foot's ankle
     lies more than this from straight above its toe tips (``pipeline.leg_angle_deg``), the feet are taken from the

@@ -510,6 +510,9 @@ def turned_where_needed(
     - the floor's up not up the picture at the largest foot (``floor``: (K (3, 3), cam_from_floor (4, 4)) of the
       floor a reference object or the depth shows, or None; ``floor_up_turns``): every foot is taken from the
       photo turned so that it is (a phone held sideways or upside down);
+    - a floor seen straight down (``seen_straight_down``: its up cannot tell, and no view from the side can be
+      either): every foot is taken from the photo turned so that the largest foot's ankle lies above its toes
+      (``MeasureConfig.straight_down_ankle_up``), where that look sees it there too;
     - without a floor that tells, the largest foot's ankle below its toes (``MeasureConfig.upside_down_deg``):
       every foot is taken from the photo turned 180 deg, where that look puts the ankle below the toes too
       (photos looking down at one's own feet, the legs entering from the bottom);
@@ -547,6 +550,12 @@ def turned_where_needed(
     if floor_turns is not None:
         if floor_turns and _overlapping(first, turned_feet(floor_turns)) is not None:
             feet = list(turned_feet(floor_turns))
+    elif floor is not None and config.straight_down_ankle_up and seen_straight_down(first.mask, *floor, config):
+        turns = ankle_up_turns(first.cues.joints2d_px)
+        match = _overlapping(first, turned_feet(turns)) if turns else None
+        # kept only where the turned look too sees the ankle that way: else the two looks disagree
+        if match is not None and ankle_up_turns(match.cues.joints2d_px) == turns:
+            feet = list(turned_feet(turns))
     elif config.upside_down_deg is not None and leg_angle_deg(first.cues.joints2d_px) > config.upside_down_deg:
         match = _overlapping(first, turned_feet(2))
         # kept only where the turned look too sees the ankle below the toes: else the two looks disagree
@@ -573,29 +582,59 @@ def _overlapping(located: Located, others: tuple[Located, ...]) -> Located | Non
     return best if overlap > 0 else None
 
 
+def _sight_of_floor(
+    mask: np.ndarray, K: np.ndarray, cam_from_floor: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, float] | None:
+    """The floor's up (unit (3,), towards the camera), the point of the floor (3,) mm seen at the middle of the
+    foot's silhouette ``mask`` (H, W) bool and the angle (deg) between the line of sight to it and straight down;
+    None where the silhouette is empty or the floor is not in front of the camera there."""
+    ys, xs = np.nonzero(mask)
+    if not len(xs):
+        return None
+    ray = pixel_rays(np.array([xs.mean(), ys.mean()]), K)
+    ray /= np.linalg.norm(ray)
+    origin, normal = cam_from_floor[:3, 3], cam_from_floor[:3, 2]
+    normal = normal if normal @ -origin >= 0 else -normal  # up: towards the camera
+    depth = float(normal @ origin) / float(normal @ ray)
+    if depth <= 0:
+        return None
+    return normal, depth * ray, math.degrees(math.acos(min(abs(float(normal @ ray)), 1.0)))
+
+
 def floor_up_turns(mask: np.ndarray, K: np.ndarray, cam_from_floor: np.ndarray, config: MeasureConfig) -> int | None:
     """How many quarter turns counter-clockwise bring the floor's up (its normal, seen at the middle of the foot's
     silhouette ``mask`` (H, W) bool; K (3, 3), ``cam_from_floor`` (4, 4)) nearest the picture's up: 0 where it lies
     within ``MeasureConfig.floor_up_turn_deg`` of it; None where the floor cannot tell (the line of sight within
     ``MeasureConfig.floor_up_min_tilt_deg`` of straight down, or the floor not in front of the camera, or
     ``MeasureConfig.floor_up_turn_deg`` None)."""
-    ys, xs = np.nonzero(mask)
-    if not len(xs) or config.floor_up_turn_deg is None:
+    seen = _sight_of_floor(mask, K, cam_from_floor)
+    if seen is None or config.floor_up_turn_deg is None:
         return None
-    ray = pixel_rays(np.array([xs.mean(), ys.mean()]), K)
-    ray /= np.linalg.norm(ray)
-    origin, normal = cam_from_floor[:3, 3], cam_from_floor[:3, 2]
-    normal = normal if normal @ -origin >= 0 else -normal  # up: towards the camera
-    if math.degrees(math.acos(min(abs(float(normal @ ray)), 1.0))) < config.floor_up_min_tilt_deg:
+    normal, foot, tilt_deg = seen
+    if tilt_deg < config.floor_up_min_tilt_deg:
         return None
-    depth = float(normal @ origin) / float(normal @ ray)
-    if depth <= 0:
-        return None
-    foot = depth * ray
     (at, up), _ = project(np.stack([foot, foot + 100.0 * normal]), K)
-    d = up - at  # the floor's up in px
-    angle = math.degrees(math.atan2(d[0], -d[1]))  # from the picture's up, clockwise
-    if abs(angle) <= config.floor_up_turn_deg:
+    return _turns_bringing_up(up - at, config.floor_up_turn_deg)
+
+
+def seen_straight_down(mask: np.ndarray, K: np.ndarray, cam_from_floor: np.ndarray, config: MeasureConfig) -> bool:
+    """Whether the line of sight to the middle of the foot's silhouette ``mask`` lies within ``MeasureConfig.
+    floor_up_min_tilt_deg`` of straight down onto the floor (K (3, 3), ``cam_from_floor`` (4, 4))."""
+    seen = _sight_of_floor(mask, K, cam_from_floor)
+    return seen is not None and seen[2] < config.floor_up_min_tilt_deg
+
+
+def ankle_up_turns(joints2d_px: np.ndarray) -> int:
+    """How many quarter turns counter-clockwise bring the direction from the toe tips' mean to the ankle (joints
+    (18, 2) px) nearest the picture's up."""
+    return _turns_bringing_up(_toes_to_ankle_px(joints2d_px), 45.0)
+
+
+def _turns_bringing_up(direction_px: np.ndarray, within_deg: float) -> int:
+    """Quarter turns counter-clockwise that bring a picture direction (2,) px nearest the picture's up: 0 where it
+    lies within ``within_deg`` of it."""
+    angle = math.degrees(math.atan2(direction_px[0], -direction_px[1]))  # from the picture's up, clockwise
+    if abs(angle) <= within_deg:
         return 0
     # a counter-clockwise turn takes the picture's right to its top
     return int(round(angle / 90.0)) % 4
@@ -605,9 +644,14 @@ def leg_angle_deg(joints2d_px: np.ndarray) -> float:
     """The angle (deg, 0-180) between the image's up and the direction from the toe tips' mean to the ankle, of
     joints (18, 2) px: where the leg rises in the picture. The networks learnt it below ``MeasureConfig.
     upside_down_deg``."""
-    joints = np.asarray(joints2d_px, dtype=np.float64)
-    v = joints[sk.HEEL_BRANCH[0]] - joints[list(sk.TOE_TIPS)].mean(axis=0)
+    v = _toes_to_ankle_px(joints2d_px)
     return float(np.degrees(np.arctan2(abs(v[0]), -v[1])))
+
+
+def _toes_to_ankle_px(joints2d_px: np.ndarray) -> np.ndarray:
+    """(2,) px from the toe tips' mean to the ankle, of joints (18, 2) px."""
+    joints = np.asarray(joints2d_px, dtype=np.float64)
+    return joints[sk.HEEL_BRANCH[0]] - joints[list(sk.TOE_TIPS)].mean(axis=0)
 
 
 def _turned_back_located(located: Located, quarter_turns: int, width: int, height: int) -> Located:
