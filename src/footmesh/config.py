@@ -433,13 +433,23 @@ class MeasureConfig:
     outside the foot's silhouette (``FootFit.quality``): the fit went wrong and its millimetres would be too. Good
     fits on the synthetic eval: 0.01-0.08; the gross failures (50-140 mm off): 0.5-0.9."""
     uncertainty_factor: dict[str, float] = field(
-        default_factory=lambda: {"depth": 0.91, **{kind: 1.39 for kind in references.NAMES}}
+        default_factory=lambda: {"depth": 0.91, **{kind: 1.35 for kind in references.NAMES}}
     )
     """Calibration of the fit's covariance-based SD per scale source: the old factor times the 68th percentile of
     |error| / uncertainty over length and ball width on ``footmesh eval measure --views guided --seed 777 --n 60``
     (0.879 over 224 depth errors, RGB-D and depth alone: 1.04 -> 0.91; 0.888 over 114 with a reference object:
     1.56 -> 1.39; re-measured with the fine-tuned 2D-cues networks), so that about 68 % of true errors fall within
-    one uncertainty; checked on the seed-4242 photos in the README."""
+    one uncertainty; checked on the seed-4242 photos in the README. With the cost's variance factor
+    (``uncertainty_loss_reference``, 2026-12-06): 0.968 over 114 with a reference object, 1.39 -> 1.35; RGB-D
+    0.854 -> 0.867 over 106 (depth kept)."""
+    uncertainty_loss_reference: dict[str, float] = field(
+        default_factory=lambda: {"depth": 30.3, **{kind: 11.1 for kind in references.NAMES}}
+    )
+    """The fit's covariance assumes its residuals as small as on a typical calibration photo; it is scaled by
+    sqrt(final cost / this), per scale source, as a least-squares fit's covariance is by its residuals' variance
+    factor (the median ``FootFit.loss`` on ``footmesh eval measure --views guided --seed 777 --n 60``: RGB + reference
+    11.1, RGB-D 30.3). There the length error grew with the cost (RGB + reference, thirds by cost: mean 1.9 / 4.3 /
+    7.0 mm) while the unscaled uncertainty did not (4.9 / 4.6 / 4.5 mm); real photos fit with costs of 37-200."""
     uncertainty_floor_mm: float = 0.5
 
     def __post_init__(self) -> None:

@@ -25,7 +25,8 @@ def measurement_uncertainty(
 ) -> dict[str, float]:
     """One-SD uncertainty (mm) of each measurement: the fit's shape covariance propagated through the
     measurements (central differences along its principal axes, ``FootFit.shape_sigma_points``), times the
-    calibration factor of the scale source (``MeasureConfig``), the reference object's scale uncertainty and,
+    calibration factor of the scale source and the square root of the fit's cost against a typical calibration
+    fit's (``MeasureConfig``), the reference object's scale uncertainty and,
     where the focal length was estimated, how much each measurement moves with one SD of it (``focal_effect_mm``)."""
     points = fit.shape_sigma_points()  # (2, K, K)
     faces = model.faces(fit.side).numpy()
@@ -44,6 +45,8 @@ def measurement_uncertainty(
     half = np.where(np.isnan(plus) | np.isnan(minus), one_sided, 0.5 * np.abs(plus - minus))
     sd = np.sqrt(np.nansum(half**2, axis=0))
     factor = config.uncertainty_factor[scale_source]  # every scale source has its calibration
+    # the residuals' variance factor against a typical calibration fit's (``MeasureConfig.uncertainty_loss_reference``)
+    factor *= math.sqrt(max(fit.loss, 0.0) / config.uncertainty_loss_reference[scale_source])
     floor = config.uncertainty_floor_mm
     rel = float(reference.scale_rel_sd) if reference is not None else 0.0
     out_u = {}
