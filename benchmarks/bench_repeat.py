@@ -31,7 +31,7 @@ WITHIN_MM = 3.0
 """Issue 19's target for two photos of the same foot."""
 
 
-Version = Callable[[np.ndarray, "Camera | None"], tuple[np.ndarray, "Camera | None"]]
+Version = Callable[[np.ndarray, Camera | None], tuple[np.ndarray, Camera | None]]
 """A photo's change: (BGR uint8, its camera or None) -> the changed photo and its camera."""
 
 
