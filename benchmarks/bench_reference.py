@@ -11,7 +11,8 @@ inherits.
 Real photos beside them: the seven phone photos of a foot on an A4 sheet in ``../shared/real/a4/photos``, against
 their corners marked by hand (``tests/data/real_a4_corners.json``), searched the way ``footmesh measure`` does
 (``footmesh.eval.real_reference``): found, the corners' error (px at 1600 on the photo's longer side) and the
-error of the camera-to-sheet distance against the marked corners' pose.
+error of the camera-to-sheet distance against the marked corners' pose; and the same photos turned by quarter
+turns (a phone held sideways or upside down), where the search must find the same sheet.
 
 Run: ``python benchmarks/bench_reference.py [--n 60] [--size 640] [--seed 4242] [--views random front ood]
 [--real DIR]``.
@@ -129,6 +130,37 @@ def format_real_table(photos: Path) -> str:
     return "\n".join(lines)
 
 
+def format_turned_table(photos: Path) -> str:
+    """Markdown table of the detector on the real A4 photos turned 0, 90, 180 and 270 deg: per photo the worst
+    corner of each turn and the distance errors' range."""
+    import tempfile
+
+    from footmesh.eval.real_reference import read_corners, score_turned
+
+    marked = read_corners(REAL_CORNERS)
+    lines = [
+        "| real photo turned | found | worst corner px at 1600: 0 / 90 / 180 / 270 deg | distance error % range |",
+        "|---|---:|---:|---:|",
+    ]
+    worst_all, found_all = [], 0
+    with tempfile.TemporaryDirectory() as tmp:
+        for name in sorted(marked):
+            scores = [score_turned(photos / name, marked[name], k, tmp) for k in range(4)]
+            found = [s for s in scores if s.found]
+            found_all += len(found)
+            worst = [max(s.corner_errors_px) if s.found else float("nan") for s in scores]
+            worst_all += [w for w in worst if np.isfinite(w)]
+            distance = [100 * s.centre_distance_error for s in found]
+            spread = f"{min(distance):+.2f} to {max(distance):+.2f}" if distance else "-"
+            cells = " / ".join("-" if not np.isfinite(w) else f"{w:.1f}" for w in worst)
+            lines.append(f"| {name} | {len(found)} / 4 | {cells} | {spread} |")
+    lines.append(
+        f"| **all** | **{found_all} / {4 * len(marked)}** | median {statistics.median(worst_all):.1f}, "
+        f"max {max(worst_all):.1f} | |"
+    )
+    return "\n".join(lines)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--n", type=int, default=60, help="photos (cycling A4, card, marker)")
@@ -149,6 +181,8 @@ def main() -> None:
     print()
     if args.real.is_dir():
         print(format_real_table(args.real))
+        print()
+        print(format_turned_table(args.real))
     else:
         print(f"(real photos not found at {args.real}: the synthetic table only)")
     if args.no_reference.is_dir():

@@ -12,7 +12,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from footmesh.eval.real_reference import matched_corner_errors, read_corners, score_set, sheet_centre_distance_mm
+from footmesh.eval.real_reference import (
+    matched_corner_errors,
+    read_corners,
+    score_set,
+    score_turned,
+    sheet_centre_distance_mm,
+)
 
 ROOT = Path(__file__).resolve().parents[2]
 PHOTOS = ROOT / ".." / "shared" / "real" / "a4" / "photos"
@@ -55,3 +61,17 @@ def test_every_real_sheet_is_found_with_its_corners_and_scale():
         # the detector's own uncertainty covers its error
         assert abs(score.centre_distance_error) <= 3.0 * score.scale_rel_sd
     assert np.median([np.max(s.corner_errors_px) for s in scores]) <= 6.0
+
+
+def test_a_real_sheet_turned_sideways_is_found_as_upright(tmp_path):
+    """The photo whose sheet corner the feet's mask once moved 23 px when turned 90 deg (docs/reference.md): the
+    search must not care which way up the phone was held."""
+    name = "arshoe_barefeet_1.jpg"
+    marked = read_corners(CORNERS)[name]
+    upright = score_turned(PHOTOS / name, marked, 0, tmp_path)
+    turned = score_turned(PHOTOS / name, marked, 1, tmp_path)
+    assert upright.found and turned.found
+    assert max(turned.corner_errors_px) <= 14.0
+    # the detector's own uncertainty covers its error, turned as upright
+    for score in (upright, turned):
+        assert abs(score.centre_distance_error) <= 3.0 * score.scale_rel_sd

@@ -138,6 +138,25 @@ def score_photo(path: str | os.PathLike, marked_px: np.ndarray) -> RealReference
     )
 
 
+def score_turned(
+    path: str | os.PathLike, marked_px: np.ndarray, quarter_turns: int, folder: str | os.PathLike
+) -> RealReferenceScore:
+    """``score_photo`` of the photo turned ``quarter_turns`` x 90 deg counter-clockwise (a phone held sideways or
+    upside down: the search must not care), against its marked corners turned with it; the turned photo is written
+    to ``folder`` (PNG, lossless)."""
+    from footmesh.geometry.camera import turned_pixels
+    from footmesh.load import load_photo
+
+    rgb = load_photo(path).rgb
+    h, w = rgb.shape[:2]
+    to_marked = MARKED_SIDE_PX / max(h, w)
+    turned_path = Path(folder) / f"{Path(path).stem}_turned{quarter_turns % 4}.png"
+    cv2.imwrite(str(turned_path), cv2.cvtColor(np.ascontiguousarray(np.rot90(rgb, quarter_turns)), cv2.COLOR_RGB2BGR))
+    pixels = turned_pixels(w, h, quarter_turns)
+    turned_px = (marked_px / to_marked) @ pixels[:2, :2].T + pixels[:2, 2]
+    return score_photo(turned_path, turned_px * to_marked)
+
+
 def score_set(photos_dir: str | os.PathLike, corners_json: str | os.PathLike) -> list[RealReferenceScore]:
     """``score_photo`` of every photo the ground truth names, in name order."""
     marked = read_corners(corners_json)
