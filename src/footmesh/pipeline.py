@@ -14,6 +14,7 @@ import logging
 import math
 import os
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -546,21 +547,25 @@ def turned_where_needed(
         return tuple(back if sheet_px is None else (_off_the_paper(foot, rgb, sheet_px) for foot in back))
 
     first = feet[0]
+
+    def agreeing(quarter_turns: int, agrees: Callable[[np.ndarray], bool]) -> list[Located] | None:
+        """The feet of the photo turned ``quarter_turns``, where the largest foot is found there and its joints
+        (18, 2) px, back in the photo's pixels, ``agrees``; else None (the two looks disagree)."""
+        if not quarter_turns:
+            return None
+        match = _overlapping(first, turned_feet(quarter_turns))
+        return list(turned_feet(quarter_turns)) if match is not None and agrees(match.cues.joints2d_px) else None
+
+    turned_look = None
     floor_turns = None if floor is None else floor_up_turns(first.mask, *floor, config)
     if floor_turns is not None:
-        if floor_turns and _overlapping(first, turned_feet(floor_turns)) is not None:
-            feet = list(turned_feet(floor_turns))
+        turned_look = agreeing(floor_turns, lambda joints: True)
     elif floor is not None and config.straight_down_ankle_up and seen_straight_down(first.mask, *floor, config):
         turns = ankle_up_turns(first.cues.joints2d_px)
-        match = _overlapping(first, turned_feet(turns)) if turns else None
-        # kept only where the turned look too sees the ankle that way: else the two looks disagree
-        if match is not None and ankle_up_turns(match.cues.joints2d_px) == turns:
-            feet = list(turned_feet(turns))
+        turned_look = agreeing(turns, lambda joints: ankle_up_turns(joints) == turns)
     elif config.upside_down_deg is not None and leg_angle_deg(first.cues.joints2d_px) > config.upside_down_deg:
-        match = _overlapping(first, turned_feet(2))
-        # kept only where the turned look too sees the ankle below the toes: else the two looks disagree
-        if match is not None and leg_angle_deg(match.cues.joints2d_px) > 90.0:
-            feet = list(turned_feet(2))
+        turned_look = agreeing(2, lambda joints: leg_angle_deg(joints) > 90.0)
+    feet = turned_look or feet
     looks = []
     for foot in feet:
         if refusals.cut_off(foot.mask, foot.cues.joints2d_px, w, h, config) is not None:
