@@ -11,8 +11,9 @@ inherits.
 Real photos beside them: the seven phone photos of a foot on an A4 sheet in ``../shared/real/a4/photos``, against
 their corners marked by hand (``tests/data/real_a4_corners.json``), searched the way ``footmesh measure`` does
 (``footmesh.eval.real_reference``): found, the corners' error (px at 1600 on the photo's longer side) and the
-error of the camera-to-sheet distance against the marked corners' pose; and the same photos turned by quarter
-turns (a phone held sideways or upside down), where the search must find the same sheet.
+error of the camera-to-sheet distance against the marked corners' pose; the same photos turned by quarter
+turns (a phone held sideways or upside down), where the search must find the same sheet; and cropped so that the
+photo's edge cuts the sheet (a photo framed on the foot), where its far corners are placed from its other sides.
 
 Run: ``python benchmarks/bench_reference.py [--n 60] [--size 640] [--seed 4242] [--views random front ood]
 [--real DIR]``.
@@ -21,6 +22,7 @@ Run: ``python benchmarks/bench_reference.py [--n 60] [--size 640] [--seed 4242] 
 from __future__ import annotations
 
 import argparse
+import re
 import statistics
 import time
 from pathlib import Path
@@ -161,6 +163,49 @@ def format_turned_table(photos: Path) -> str:
     return "\n".join(lines)
 
 
+CROP_DEPTHS = (0.25, 0.45)
+"""How far across the sheet the crops' edges lie (``score_cropped``'s depth)."""
+
+
+def format_cropped_table(photos: Path) -> str:
+    """Markdown table of the detector on the real A4 photos cropped so that one edge of the photo cuts the sheet
+    (each edge, ``CROP_DEPTHS``; ``eval.real_reference.score_cropped``): per photo how many were found (a crop that
+    leaves no foot or puts the principal point outside it is not scored), the worst corner (all four, the far ones
+    beyond the crop) and the distance error against its SD; and the reasons the others were not taken."""
+    import collections
+    import tempfile
+
+    from footmesh.errors import Refusal
+    from footmesh.eval.real_reference import read_corners, score_cropped
+
+    marked = read_corners(REAL_CORNERS)
+    lines = [
+        "| real photo cropped across the sheet | found / scored | worst corner px at 1600 | distance error % (SD) |",
+        "|---|---:|---:|---:|",
+    ]
+    reasons: collections.Counter[str] = collections.Counter()
+    found_all = scored_all = 0
+    with tempfile.TemporaryDirectory() as tmp:
+        for name in sorted(marked):
+            scores = []
+            for edge in ("top", "bottom", "left", "right"):
+                for depth in CROP_DEPTHS:
+                    try:
+                        scores.append(score_cropped(photos / name, marked[name], edge, depth, tmp))
+                    except (Refusal, ValueError):  # no foot left in the crop, or its principal point outside it
+                        continue
+            found = [s for s in scores if s.found]
+            reasons.update(re.sub(r"\d+ %", "N %", s.rejected.split(" (")[0]) for s in scores if s.rejected)
+            found_all, scored_all = found_all + len(found), scored_all + len(scores)
+            worst = ", ".join(f"{max(s.corner_errors_px):.1f}" for s in found) or "-"
+            errors = ", ".join(f"{100 * s.centre_distance_error:+.2f} ({100 * s.scale_rel_sd:.2f})" for s in found)
+            lines.append(f"| {name} | {len(found)} / {len(scores)} | {worst} | {errors or '-'} |")
+    lines.append(f"| **all** | **{found_all} / {scored_all}** | | |")
+    lines.append("")
+    lines.append("Not taken, by reason: " + "; ".join(f"{n} x {why}" for why, n in reasons.most_common()))
+    return "\n".join(lines)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--n", type=int, default=60, help="photos (cycling A4, card, marker)")
@@ -183,6 +228,8 @@ def main() -> None:
         print(format_real_table(args.real))
         print()
         print(format_turned_table(args.real))
+        print()
+        print(format_cropped_table(args.real))
     else:
         print(f"(real photos not found at {args.real}: the synthetic table only)")
     if args.no_reference.is_dir():

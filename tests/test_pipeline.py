@@ -712,6 +712,25 @@ def test_a_real_foot_whose_leg_lies_across_the_photo_is_read_turned_not_refused_
         measure_photo(photo, tmp_path / "upright", config=MeasureConfig(floor_up_turn_deg=None, turned_looks=()))
 
 
+def test_a_real_photo_whose_edge_cuts_the_sheet_is_measured_and_says_so(tmp_path):
+    """A real photo cropped so that the sheet's far end leaves the picture (``eval.real_reference.score_cropped``:
+    the whole sheet's focal length, the principal point kept, in a K.json): millimetres from the sheet's three
+    sides in view, the result says the sheet was cut and gives its corners beyond the photo."""
+    from footmesh.eval.real_reference import read_corners, score_cropped
+
+    root = Path(__file__).resolve().parents[1]
+    name = "wildoctopus_barefeet1.jpg"
+    marked = read_corners(root / "tests" / "data" / "real_a4_corners.json")[name]
+    assert score_cropped(root / ".." / "shared" / "real" / "a4" / "photos" / name, marked, "top", 0.25, tmp_path).found
+    crop = tmp_path / "wildoctopus_barefeet1_top25.png"
+    result = measure_photo(crop, tmp_path / "out", intrinsics=crop.with_suffix(".K.json"))
+    low, high = MeasureConfig().plausible_length_mm
+    assert result["scaled"] and result["scale_source"] == "a4"
+    assert any("edge cuts off one side of an A4 sheet" in message for message in result["messages"])
+    assert min(y for _, y in result["reference"]["corners_px"]) < 0  # the far corners lie above the photo
+    assert low <= result["measurements"]["stick_length"]["value_mm"] <= high
+
+
 def _feet_seen_from_above(splay_deg: float, step_mm: tuple[float, float], roll_deg: float) -> dict[str, np.ndarray]:
     """(18, 2) px joints of a left and a right model foot standing on the floor, seen from straight above: each
     turned ``splay_deg`` outwards, the right one ``step_mm`` (ahead, to the right) of the left; the picture rolled

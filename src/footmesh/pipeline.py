@@ -441,6 +441,12 @@ def _run_stages(photo: Photo, side: str, config: MeasureConfig, input: str) -> t
                 f"the reference: {searched.rejected}; lay the sheet flat, all of it in view, its sides clear of "
                 "clothing and shadows"
             )
+        if reference is not None and reference.beyond_edge:
+            notes.append(
+                f"the photo's edge cuts off one side of {references.kind(reference.kind).described}: its far corners "
+                f"were placed from its known size and its other sides (scale known to "
+                f"{100 * reference.scale_rel_sd:.1f} %); for the best figures photograph all of it"
+            )
         if reference is not None and config.clear_paper and references.kind(reference.kind).detector == "sheet":
             sheet_px = reference.corners_px
             feet = [_off_the_paper(foot, rgb, sheet_px) for foot in feet]

@@ -15,6 +15,7 @@ import pytest
 from footmesh.eval.real_reference import (
     matched_corner_errors,
     read_corners,
+    score_cropped,
     score_set,
     score_turned,
     sheet_centre_distance_mm,
@@ -75,3 +76,24 @@ def test_a_real_sheet_turned_sideways_is_found_as_upright(tmp_path):
     # the detector's own uncertainty covers its error, turned as upright
     for score in (upright, turned):
         assert abs(score.centre_distance_error) <= 3.0 * score.scale_rel_sd
+
+
+def test_a_real_sheet_cut_by_the_photos_edge_is_placed_from_its_other_sides(tmp_path):
+    """A real photo cropped so that the end of the sheet beyond the heel leaves the picture (the focal length the
+    whole sheet gave, the principal point kept): the far corners are placed from the three sides in view within
+    22 px (of 1600; they are extrapolated), and the scale is within 3 of its own SD."""
+    name = "arshoe_barefeet_2.jpg"
+    score = score_cropped(PHOTOS / name, read_corners(CORNERS)[name], "top", 0.25, tmp_path)
+    assert score.found, score.rejected
+    assert max(score.corner_errors_px) <= 22.0, score.corner_errors_px
+    assert abs(score.centre_distance_error) <= 3.0 * score.scale_rel_sd
+
+
+def test_a_sheet_barely_cut_is_not_rebuilt_from_the_foots_outline(tmp_path):
+    """The photo's edge just inside the sheet's near corners, the foot standing on it: the search once took the
+    sheet's two far sides, the foot's outline and the paper's shading for a whole sheet completed across a hidden
+    corner (a foot of 316 mm against 221 uncropped). Whatever it takes must be the sheet."""
+    name = "arshoe_barefeet_1.jpg"
+    score = score_cropped(PHOTOS / name, read_corners(CORNERS)[name], "bottom", 0.01, tmp_path)
+    if score.found:
+        assert max(score.corner_errors_px) <= 22.0, score.corner_errors_px

@@ -76,9 +76,10 @@ def sheet_centre_distance_mm(corners_px: np.ndarray, K: np.ndarray) -> float:
     return best[1]
 
 
-def pipeline_search(path: str | os.PathLike):
-    """The pipeline's reference search on one photo (working resolution, the feet masked out): (photo, K of the
-    working image, working-to-photo factor, ``ReferenceSearch``, seconds of the search)."""
+def pipeline_search(path: str | os.PathLike, intrinsics: str | os.PathLike | None = None):
+    """The pipeline's reference search on one photo (working resolution, the feet masked out; ``intrinsics``: its
+    K.json, else EXIF or the default): (photo, K of the working image, working-to-photo factor,
+    ``ReferenceSearch``, seconds of the search)."""
     import torch
 
     from footmesh.config import MeasureConfig
@@ -87,7 +88,7 @@ def pipeline_search(path: str | os.PathLike):
     from footmesh.pipeline import locate_feet, working_photo
 
     config = MeasureConfig()
-    photo = load_photo(path)
+    photo = load_photo(path, intrinsics=intrinsics)
     rgb, _, camera, to_photo = working_photo(photo, config.rgb_working_max_side)
     with torch.inference_mode():
         feet = locate_feet(rgb, None, camera.K, "rgb", config)
@@ -116,9 +117,12 @@ def false_references(photos_dir: str | os.PathLike) -> list[tuple[str, str]]:
     return found
 
 
-def score_photo(path: str | os.PathLike, marked_px: np.ndarray) -> RealReferenceScore:
-    """Search one photo for its reference the way the pipeline does and score it against the marked corners."""
-    photo, K, to_photo, searched, seconds = pipeline_search(path)
+def score_photo(
+    path: str | os.PathLike, marked_px: np.ndarray, intrinsics: str | os.PathLike | None = None
+) -> RealReferenceScore:
+    """Search one photo for its reference the way the pipeline does and score it against the marked corners (all
+    four, also those of a sheet beyond the photo's edge; ``intrinsics``: ``pipeline_search``'s)."""
+    photo, K, to_photo, searched, seconds = pipeline_search(path, intrinsics)
     found = searched.found
     nan4 = (float("nan"),) * 4
     if found is None:
@@ -155,6 +159,47 @@ def score_turned(
     pixels = turned_pixels(w, h, quarter_turns)
     turned_px = (marked_px / to_marked) @ pixels[:2, :2].T + pixels[:2, 2]
     return score_photo(turned_path, turned_px * to_marked)
+
+
+def score_cropped(
+    path: str | os.PathLike, marked_px: np.ndarray, edge: str, depth: float, folder: str | os.PathLike
+) -> RealReferenceScore:
+    """``score_photo`` of the photo cropped so that its ``edge`` ("top", "bottom", "left" or "right") cuts across the
+    sheet and leaves the two corners nearest that edge beyond it: the crop's edge crosses ``depth`` of the way from
+    the nearer of those corners to the nearer of the others (a photo framed on the foot; ``cut``). The crop is
+    written to ``folder`` (PNG, lossless) with its intrinsics: the focal length the whole sheet gives the photo
+    (its perspective; the photos carry no EXIF) and the photo's principal point, where the crop has it, so that
+    only the sheet's far side is missing."""
+    from footmesh.load import load_photo
+
+    photo, K, to_photo, whole, _ = pipeline_search(path)
+    if whole.found is None:
+        raise ValueError(f"{Path(path).name}: no sheet found in the whole photo to take its focal length from")
+    rgb = load_photo(path).rgb
+    h, w = rgb.shape[:2]
+    to_marked = MARKED_SIDE_PX / max(h, w)
+    corners = marked_px / to_marked
+    axis = 1 if edge in ("top", "bottom") else 0
+    signed = corners[:, axis] if edge in ("top", "left") else -corners[:, axis]
+    first, second = np.sort(signed)[1:3]
+    cut = int(round(abs(first + depth * (second - first))))
+    start = np.zeros(2, int)
+    stop = np.array([w, h])
+    if edge in ("top", "left"):
+        start[axis] = cut
+    else:
+        stop[axis] = cut
+    cropped_name = Path(folder) / f"{Path(path).stem}_{edge}{round(100 * depth)}"
+    image = np.ascontiguousarray(rgb[start[1] : stop[1], start[0] : stop[0]])
+    cv2.imwrite(str(cropped_name.with_suffix(".png")), cv2.cvtColor(image, cv2.COLOR_RGB2BGR))
+    focal = float(whole.found.K[0, 0]) * to_photo
+    centre = K[:2, 2] * to_photo - start
+    intrinsics = {"fx": focal, "fy": focal, "cx": float(centre[0]), "cy": float(centre[1])}
+    intrinsics |= {"width": float(image.shape[1]), "height": float(image.shape[0])}
+    k_path = cropped_name.with_suffix(".K.json")
+    k_path.write_text(json.dumps(intrinsics))
+    crop_to_marked = MARKED_SIDE_PX / max(image.shape[:2])
+    return score_photo(cropped_name.with_suffix(".png"), (corners - start) * crop_to_marked, k_path)
 
 
 def score_set(photos_dir: str | os.PathLike, corners_json: str | os.PathLike) -> list[RealReferenceScore]:

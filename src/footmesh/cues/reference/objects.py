@@ -25,7 +25,9 @@ class ReferenceObject:
     where their focal length was a guess, with the focal length the rectangle's perspective gives:
     ``focal.focal_estimate``); ``focal_log_sd``: the SD of that focal length's log (0: the caller's, held; a
     sheet completed across a hidden corner keeps the caller's focal length and its SD); ``mirrored``: the marker
-    was read in the mirror image.
+    was read in the mirror image; ``beyond_edge``: a sheet with one side beyond the photo's edge, its two corners
+    there placed from its other sides and its size (``cut``; the focal length held, and its SD's effect on the
+    scale counted in ``scale_rel_sd``).
     """
 
     kind: str
@@ -39,6 +41,7 @@ class ReferenceObject:
     K: np.ndarray
     focal_log_sd: float = 0.0
     mirrored: bool = False
+    beyond_edge: bool = False
 
     @property
     def floor_normal(self) -> np.ndarray:

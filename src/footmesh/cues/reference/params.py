@@ -154,6 +154,18 @@ COMPLETION_MIN_COVERAGE = 0.5
 COMPLETION_MIN_SUPPORT = 0.8
 """A sheet is completed from three sides only when each shows its edge along this much of it (coverage,
 support as in ``_Line``)."""
+CUT_EDGE_PX = 3.0
+"""A rough quad's side runs along the photo's edge where both its corners lie within this (px) of it; a sheet
+completed across it must put its far corners farther than this beyond it (``cut``)."""
+CUT_LENGTH_MARGIN = 0.1
+"""A sheet cut by the photo's edge is taken only where one completion alone fits what shows: the other (the side in
+view whole taken for the other side of the sheet) would have to leave the photo this fraction short of where the
+cut sides do (their ends in view are where the edge cuts them, their directions from a vanishing point)."""
+WEAK_SIDE_SHARE = 0.25
+"""A sheet's side parts the paper from the floor (or from the foot over it) with a step of colour at least this
+share of its strongest side's; a weaker one is the paper's own shading or the skin's, which a quad the search
+completed itself may run along (a real photo cropped: a fourth side across the paper, a third along the foot's
+creases)."""
 COMPLETED_MIN_SIDE_SUPPORT = 0.7
 """Each side of a completed sheet must show its edge at this fraction of the positions where it is seen: the
 hidden corner is hidden by the foot (where nothing counts), not missing from a bright blob (the top of a leg

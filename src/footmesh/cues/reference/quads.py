@@ -18,6 +18,7 @@ from footmesh.cues.reference.params import (
     ANGLE_TOLERANCE_DEG,
     ASPECT_TOLERANCE,
     BORDER_MARGIN_PX,
+    CUT_EDGE_PX,
     END_SKIP,
     FOCAL_KINDS,
     LOOSE_FACTOR,
@@ -101,9 +102,10 @@ def _candidate_groups(
     """Rough (4, 2) px quadrilaterals (canonical order) that might be one of ``kinds``, from the outlines of
     ``regions``: "sheet" (bright in every channel) or "card" (thresholds of the grey level and of each channel,
     either way, of the chroma, and edges); in groups to try in turn: the quads the outlines make, then (sheets)
-    those made by completing a hidden corner. Near duplicates of each other and of the keys in ``seen``
-    (updated) are left out. ``free_focal``: K's focal length is a guess; each quad is also tested, for the kinds
-    whose perspective may correct it (``FOCAL_KINDS``), at the focal length that suits it best (``focal``)."""
+    those made by completing a hidden corner, then those of a sheet cut by the photo's edge (``_cut_many``). Near
+    duplicates of each other and of the keys in ``seen`` (updated) are left out. ``free_focal``: K's focal length
+    is a guess; each quad is also tested, for the kinds whose perspective may correct it (``FOCAL_KINDS``), at the
+    focal length that suits it best (``focal``)."""
     if regions not in ("sheet", "card"):
         raise ValueError(f"regions must be 'sheet' or 'card', got {regions!r}")
     h, w = blurred.shape[:2]
@@ -180,10 +182,14 @@ def _candidate_groups(
         return []
 
     rough, source = _polygon_quads(polygons)
+    big = np.array([polygons[i][3] and polygons[i][1] >= SHEET_MIN_AREA * h * w for i in source])
+    # a sheet's region cut by the photo's edge: its quads have a side along that edge (tried last of all)
+    sizes = [SIZES_MM[k] for k in SHEETS if k in kinds] if regions == "sheet" else []
+    cut = [quad for size in sizes for quad in _cut_many(rough[big], K, h, w, size)]
     keep = _inside_many(rough, h, w)
-    rough, source = _canonical_many(rough[keep]), source[keep]
+    rough, source, big = _canonical_many(rough[keep]), source[keep], big[keep]
     keep = np.isfinite(rough).all(axis=(1, 2))
-    rough, source = rough[keep], source[keep]
+    rough, source, big = rough[keep], source[keep], big[keep]
     passed = _classify_many(rough, K, RECTANGLES, 2 * LOOSE_FACTOR)
     focal_kinds = [k for k in RECTANGLES if k in FOCAL_KINDS]
     if free_focal:
@@ -211,11 +217,9 @@ def _candidate_groups(
         # of its sides, and try it after the others
         quads = []
         groups.append(quads)
-        big = np.array([polygons[i][3] and polygons[i][1] >= SHEET_MIN_AREA * h * w for i in source])
         todo = ~passed & big
         if todo.any():
             area = np.array([polygons[i][1] for i in source[todo]])
-            sizes = [SIZES_MM[k] for k in SHEETS if k in kinds]
             completed = np.concatenate([_complete_many(rough[todo], area, K, h, w, size) for size in sizes])
             if len(completed):
                 _, first = np.unique(
@@ -226,6 +230,7 @@ def _candidate_groups(
                     if key not in seen:
                         seen.add(key)
                         quads.append(quad)
+        groups.append(cut)
     return groups
 
 
@@ -234,13 +239,36 @@ def _complete_many(
 ) -> np.ndarray:
     """Sheets (N, 4, 2) px that (M, 4, 2) quads could be with one side wrong (cut across a hidden corner): for
     each side m, the other three kept and the rectangle of the sheet's proportions (``size_mm``) they bound, for
-    either side being the
-    long one. Only those inside the image, holding the quad and at most MAX_HIDDEN_AREA_RATIO times the region.
+    either side being the long one (``_completions``). Only those inside the image, holding the quad and at most
+    MAX_HIDDEN_AREA_RATIO times the region."""
+    qx, qy = quads[..., 0], quads[..., 1]
+    quad_area = 0.5 * np.abs(np.sum(qx * np.roll(qy, -1, axis=1) - np.roll(qx, -1, axis=1) * qy, axis=1))
+    out = []
+    for m in range(4):
+        for corners, ok in _completions(quads, K, m, size_mm):
+            with np.errstate(invalid="ignore", over="ignore"):
+                x, y = corners[..., 0], corners[..., 1]
+                area = 0.5 * np.abs(np.sum(x * np.roll(y, -1, axis=1) - np.roll(x, -1, axis=1) * y, axis=1))
+                ok &= (area >= 0.98 * quad_area) & (area <= MAX_HIDDEN_AREA_RATIO * region_area)
+            ok &= _inside_many(corners, h, w)
+            out.append(corners[ok])
+    completed = _canonical_many(np.concatenate(out))
+    return completed[np.isfinite(completed).all(axis=(1, 2))]
+
+
+def _completions(
+    quads: np.ndarray, K: np.ndarray, m: int, size_mm: tuple[float, float]
+) -> list[tuple[np.ndarray, np.ndarray]]:
+    """For (M, 4, 2) quads whose side m (corner m to m + 1) is wrong or unseen, the rectangles of the sheet's
+    proportions ``size_mm`` that their other three sides bound: [(corners (M, 4, 2) px in the quads' own
+    numbering, whether each is a rectangle in front of the camera (M,) bool)], side m + 2 first the long side, then
+    the short one.
 
     Sides m + 1 and m + 3 are parallel on the floor: their images meet at the vanishing point v, and their 3D
     direction is D1 = K^-1 v. Side m + 2 lies in the plane through the camera with normal K^T l (l its image line)
     and is perpendicular to D1: D2 = K^T l x D1. The floor's normal is D1 x D2; corners m + 2 and m + 3 are cut
-    from their rays by that plane, and corners m + 1, m = those plus the other side's length along D1.
+    from their rays by that plane, and corners m + 1, m = those plus the other side's length along D1 (towards the
+    quad's own corners m + 1 and m).
     """
     k_inv = np.linalg.inv(K)
     hom = np.concatenate([quads, np.ones(quads.shape[:2] + (1,))], axis=2)  # (M, 4, 3)
@@ -248,40 +276,62 @@ def _complete_many(
     length, width = size_mm
     out = []
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        i1, i2, i3 = (m + 1) % 4, (m + 2) % 4, (m + 3) % 4
+        d1 = np.cross(lines[:, i1], lines[:, i3]) @ k_inv.T  # (M, 3)
+        d2 = np.cross(lines[:, i2] @ K, d1)
+        normal = np.cross(d1, d2)
+        r2, r3 = hom[:, i2] @ k_inv.T, hom[:, i3] @ k_inv.T  # rays of corners m + 2, m + 3
+        s2, s3 = np.sum(normal * r2, axis=1), np.sum(normal * r3, axis=1)
+        p2, p3 = r2 / s2[:, None], r3 / s3[:, None]  # on the plane normal . X = 1 (up to scale and sign)
+        p2 = p2 * np.sign(p2[:, 2:])
+        p3 = p3 * np.sign(p3[:, 2:])
+        u1 = d1 / np.linalg.norm(d1, axis=1, keepdims=True)
+        # towards the quad's own corner m + 1 (the sign of the step along D1 as seen in the image)
+        ahead = p2 + 1e-3 * np.linalg.norm(p2, axis=1, keepdims=True) * u1
+        step = ahead[:, :2] / ahead[:, 2:] - p2[:, :2] / p2[:, 2:]  # normalised image coordinates
+        toward = (hom[:, i1, :2] - hom[:, i2, :2]) @ k_inv[:2, :2].T
+        u1 = u1 * np.sign(np.sum(step * toward, axis=1))[:, None]
+        side2 = np.linalg.norm(p2 - p3, axis=1)
+        for target in (length / width, width / length):  # |side m + 2| / |side m + 1|
+            side1 = side2 / target
+            p1 = p2 + side1[:, None] * u1
+            p0 = p3 + side1[:, None] * u1
+            pts = np.stack([p0, p1, p2, p3], axis=1)  # corners m, m + 1, m + 2, m + 3
+            ok = (pts[..., 2] > 0).all(axis=1) & np.isfinite(pts).all(axis=(1, 2))
+            px = pts @ K.T
+            out.append((np.roll(px[..., :2] / px[..., 2:], m, axis=1), ok))
+    return out
+
+
+def _cut_many(quads: np.ndarray, K: np.ndarray, h: int, w: int, size_mm: tuple[float, float]) -> list[np.ndarray]:
+    """Rough quads (4, 2) px of sheets cut by the photo's edge, numbered so that side 0 (corner 0 -> 1) runs along
+    the edge (``cut``), from (M, 4, 2) rough quads of bright regions: those with one side along an edge of the
+    photo (both its corners within ``CUT_EDGE_PX`` of it), the other two corners inside, and a sheet of proportions
+    ``size_mm`` that the other three sides bound (``_completions``, either side the long one) with its far corners
+    beyond that edge."""
+    out: list[np.ndarray] = []
+    with np.errstate(invalid="ignore"):
+        x, y = quads[..., 0], quads[..., 1]
+        inside = (x >= BORDER_MARGIN_PX) & (y >= BORDER_MARGIN_PX)
+        inside &= (x <= w - 1 - BORDER_MARGIN_PX) & (y <= h - 1 - BORDER_MARGIN_PX)  # (M, 4)
+    # the photo's edges as lines (a, b, c), a x + b y + c >= 0 inside
+    for edge in ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (-1.0, 0.0, w - 1.0), (0.0, -1.0, h - 1.0)):
+        inward = np.array(edge[:2])
+        with np.errstate(invalid="ignore"):
+            on_edge = np.abs(quads @ inward + edge[2]) <= CUT_EDGE_PX  # (M, 4)
         for m in range(4):
-            i1, i2, i3 = (m + 1) % 4, (m + 2) % 4, (m + 3) % 4
-            d1 = np.cross(lines[:, i1], lines[:, i3]) @ k_inv.T  # (M, 3)
-            d2 = np.cross(lines[:, i2] @ K, d1)
-            normal = np.cross(d1, d2)
-            r2, r3 = hom[:, i2] @ k_inv.T, hom[:, i3] @ k_inv.T  # rays of corners m + 2, m + 3
-            s2, s3 = np.sum(normal * r2, axis=1), np.sum(normal * r3, axis=1)
-            p2, p3 = r2 / s2[:, None], r3 / s3[:, None]  # on the plane normal . X = 1 (up to scale and sign)
-            p2 = p2 * np.sign(p2[:, 2:])
-            p3 = p3 * np.sign(p3[:, 2:])
-            u1 = d1 / np.linalg.norm(d1, axis=1, keepdims=True)
-            # towards the quad's own corner m + 1 (the sign of the step along D1 as seen in the image)
-            ahead = p2 + 1e-3 * np.linalg.norm(p2, axis=1, keepdims=True) * u1
-            step = ahead[:, :2] / ahead[:, 2:] - p2[:, :2] / p2[:, 2:]  # normalised image coordinates
-            toward = (hom[:, i1, :2] - hom[:, i2, :2]) @ k_inv[:2, :2].T
-            u1 = u1 * np.sign(np.sum(step * toward, axis=1))[:, None]
-            side2 = np.linalg.norm(p2 - p3, axis=1)
-            for target in (length / width, width / length):  # |side m + 2| / |side m + 1|
-                side1 = side2 / target
-                p1 = p2 + side1[:, None] * u1
-                p0 = p3 + side1[:, None] * u1
-                pts = np.stack([p0, p1, p2, p3], axis=1)  # corners m, m + 1, m + 2, m + 3
-                ok = (pts[..., 2] > 0).all(axis=1) & np.isfinite(pts).all(axis=(1, 2))
-                px = pts @ K.T
-                corners = np.roll(px[..., :2] / px[..., 2:], m, axis=1)
-                x, y = corners[..., 0], corners[..., 1]
-                area = 0.5 * np.abs(np.sum(x * np.roll(y, -1, axis=1) - np.roll(x, -1, axis=1) * y, axis=1))
-                qx, qy = quads[..., 0], quads[..., 1]
-                quad_area = 0.5 * np.abs(np.sum(qx * np.roll(qy, -1, axis=1) - np.roll(qx, -1, axis=1) * qy, axis=1))
-                ok &= (area >= 0.98 * quad_area) & (area <= MAX_HIDDEN_AREA_RATIO * region_area)
-                ok &= _inside_many(corners, h, w)
-                out.append(corners[ok])
-    completed = _canonical_many(np.concatenate(out))
-    return completed[np.isfinite(completed).all(axis=(1, 2))]
+            along = on_edge[:, m] & on_edge[:, (m + 1) % 4] & inside[:, (m + 2) % 4] & inside[:, (m + 3) % 4]
+            if not along.any():
+                continue
+            rolled = np.roll(quads[along], -m, axis=1)
+            beyond = np.zeros(len(rolled), dtype=bool)
+            for corners, ok in _completions(rolled, K, 0, size_mm):
+                with np.errstate(invalid="ignore"):
+                    beyond |= ok & (corners[:, :2] @ inward + edge[2] < -CUT_EDGE_PX).all(axis=1)
+            for quad in rolled[beyond]:
+                if not any(np.max(np.linalg.norm(quad - kept, axis=1)) < 2.0 for kept in out):
+                    out.append(quad)
+    return out
 
 
 def _simplify(hull: np.ndarray) -> list[np.ndarray]:

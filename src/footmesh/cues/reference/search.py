@@ -10,6 +10,7 @@ import numpy as np
 
 from footmesh import references
 from footmesh.cues.reference import focal
+from footmesh.cues.reference.cut import finish_cut
 from footmesh.cues.reference.finish import _finish
 from footmesh.cues.reference.marker import _detect_marker, _overlaps
 from footmesh.cues.reference.objects import ReferenceObject, ReferenceSearch
@@ -80,7 +81,7 @@ def _with_distance_prior(found: ReferenceObject, K: np.ndarray, median_mm: float
     perspective barely tells it, which is where the shape barely depends on it. It only ever lengthens the focal
     length: an object farther than the median is what a standing person's main camera (the guess) sees, and
     shortened, a false "sheet" far off on a real photo came near enough to the foot to be taken."""
-    if found.focal_log_sd <= 0:
+    if found.focal_log_sd <= 0 or found.beyond_edge:  # a cut sheet's far corners were placed at K's focal length
         return found
     factor, new_log_sd = focal.distance_prior_scale(found.focal_log_sd, found.object_distance_mm, median_mm, log_sd)
     if factor <= 1.0:
@@ -191,8 +192,9 @@ def _try_groups(
     accepted: list[np.ndarray] = []  # corners already found, in canonical order
     largest_rejected: list[tuple[float, str]] = []  # (area px, why) of the largest rough quad rejected
 
-    def try_candidates(quads: list[np.ndarray], completed: bool = False) -> None:
-        """Refine and test rough quads in turn, keeping the best-scoring object of each kind."""
+    def try_candidates(quads: list[np.ndarray], completed: bool = False, cut: bool = False) -> None:
+        """Refine and test rough quads in turn, keeping the best-scoring object of each kind (``cut``: quads of
+        sheets cut by the photo's edge, ``cut.finish_cut``)."""
         for quad in quads:
             # many thresholds give the same object: refine it once
             if any(np.max(np.linalg.norm(quad - corners, axis=1)) < 3.0 for corners in accepted):
@@ -200,16 +202,23 @@ def _try_groups(
             if any(_overlaps(quad, sheet) for sheet in sheets):
                 continue
             why: list[str] = []
-            result = _finish(
-                quad,
-                wanted,
-                blurred,
-                K,
-                valid,
-                completed=completed,
-                rejected=why,
-                focal_prior_log_sd=focal_prior_log_sd,
-            )
+            if cut:
+                result = None
+                for kind in [k for k in SHEETS if k in wanted]:
+                    result = finish_cut(quad, kind, blurred, K, valid, focal_prior_log_sd, why, masked)
+                    if result is not None:
+                        break
+            else:
+                result = _finish(
+                    quad,
+                    wanted,
+                    blurred,
+                    K,
+                    valid,
+                    completed=completed,
+                    rejected=why,
+                    focal_prior_log_sd=focal_prior_log_sd,
+                )
             if result is None:
                 area = abs(_signed_area(quad))
                 if why and (not largest_rejected or area > largest_rejected[0][0]):
@@ -217,7 +226,7 @@ def _try_groups(
                 continue
             if masked is not None and not _paper_beside(result[1].corners_px, masked, blurred):
                 continue
-            if masked is not None and result[1].kind in SHEETS:
+            if masked is not None and result[1].kind in SHEETS and not result[1].beyond_edge:
                 lines = _fit_sides(result[1].corners_px, blurred, None, 1.5)
                 if lines is not None and all(ln is not None for ln in lines):
                     if not _blank_inside(result[1].corners_px, lines, ~masked, blurred):
@@ -244,8 +253,13 @@ def _try_groups(
             return ReferenceSearch(sheet)
     if (card := best_of(cards)) is not None:
         return ReferenceSearch(card)
-    for group in sheet_groups[1:]:
+    for group in sheet_groups[1:2]:
         try_candidates(group, completed=True)
+        if (sheet := best_of(SHEETS)) is not None:
+            return ReferenceSearch(sheet)
+    # last, a sheet with a side beyond the photo's edge: its scale along the cut sides rests on the focal length
+    for group in sheet_groups[2:]:
+        try_candidates(group, cut=True)
         if (sheet := best_of(SHEETS)) is not None:
             return ReferenceSearch(sheet)
     if not largest_rejected:

@@ -43,6 +43,7 @@ from footmesh.cues.reference.params import (
     SIZES_MM,
     STRAIGHT_EDGE_FRACTION,
     STRAIGHT_EDGE_PX,
+    WEAK_SIDE_SHARE,
 )
 from footmesh.cues.reference.quads import _corners_from_lines, _intersect, _parallelogram
 
@@ -553,10 +554,7 @@ def _perturbed_corner_pairs(pairs: list[tuple[_Line, _Line]]) -> list[np.ndarray
     out = []
     for j, pair in enumerate(pairs):
         for k, ln in enumerate(pair):
-            normal = np.array([-ln.direction[1], ln.direction[0]])
-            c, s = math.cos(ln.angle_sd), math.sin(ln.angle_sd)
-            turned = np.array([c * ln.direction[0] - s * ln.direction[1], s * ln.direction[0] + c * ln.direction[1]])
-            for point, direction in ((ln.point + ln.offset_sd * normal, ln.direction), (ln.point, turned)):
+            for point, direction in _moved(ln):
                 lines = [(a.point, a.direction) for a in pair]
                 lines[k] = (point, direction)
                 corner = _intersect(*lines[0], *lines[1])
@@ -567,13 +565,16 @@ def _perturbed_corner_pairs(pairs: list[tuple[_Line, _Line]]) -> list[np.ndarray
     return out
 
 
-def _continues(blurred: np.ndarray, quad: np.ndarray, lines: list[_Line], valid: np.ndarray | None) -> bool:
+def _continues(blurred: np.ndarray, quad: np.ndarray, lines: list[_Line | None], valid: np.ndarray | None) -> bool:
     """Whether the sides' edges run on past the corners, in line with them, at ``MIN_CONTINUATIONS`` places or more:
     the quad is then cut out of longer lines (planks, tiles, a marker's grid) and is not an object lying on the
-    floor. At one place only, it is a seam or grout line that happens to meet a corner in line with a side."""
+    floor. At one place only, it is a seam or grout line that happens to meet a corner in line with a side. (A side
+    without a line, beyond the photo's edge, is skipped.)"""
     h, w = blurred.shape[:2]
     found = 0
     for i in range(4):
+        if lines[i] is None:
+            continue
         p, q = quad[i], quad[(i + 1) % 4]
         length = float(np.linalg.norm(q - p))
         beyond = np.arange(CONTINUATION_SPAN[0] * length + 2.0, CONTINUATION_SPAN[1] * length + 2.0, 1.0)
@@ -594,12 +595,15 @@ def _continues(blurred: np.ndarray, quad: np.ndarray, lines: list[_Line], valid:
     return False
 
 
-def _inner_outer(quad: np.ndarray, lines: list[_Line]) -> tuple[np.ndarray, np.ndarray]:
-    """(4, 3) each: the typical colours just inside and just outside each side, read beyond its edges where they
-    were found (so that the foot over the sheet does not count)."""
+def _inner_outer(quad: np.ndarray, lines: list[_Line | None]) -> tuple[np.ndarray, np.ndarray]:
+    """(S, 3) each: the typical colours just inside and just outside each side with a line (S of them: a sheet cut
+    by the photo's edge has no line along it), read beyond its edges where they were found (so that the foot over
+    the sheet does not count)."""
     centre = quad.mean(axis=0)
     inner, outer = [], []
     for i, ln in enumerate(lines):
+        if ln is None:
+            continue
         t = quad[(i + 1) % 4] - quad[i]  # the side was sampled from corner i to corner i + 1
         n = np.array([-t[1], t[0]])
         far_inside = (centre - quad[i]) @ n > 0
@@ -608,18 +612,19 @@ def _inner_outer(quad: np.ndarray, lines: list[_Line]) -> tuple[np.ndarray, np.n
     return np.array(inner), np.array(outer)
 
 
-def _is_paper(quad: np.ndarray, lines: list[_Line]) -> bool:
-    """A white sheet: little colour inside, and brighter inside than outside along at least three sides."""
+def _is_paper(quad: np.ndarray, lines: list[_Line | None]) -> bool:
+    """A white sheet: little colour inside, and brighter inside than outside along at least three sides (of those
+    with a line)."""
     inner, outer = _inner_outer(quad, lines)
     paper = np.median(inner, axis=0)
     if (paper.max() - paper.min()) / max(float(paper.max()), 1e-6) > PAPER_MAX_SATURATION:
         return False
-    return int(np.sum(inner.mean(axis=1) > outer.mean(axis=1) + MIN_CONTRAST / 2)) >= 3
+    return int(np.sum(inner.mean(axis=1) > outer.mean(axis=1) + MIN_CONTRAST / 2)) >= min(3, len(inner))
 
 
-def _strange_borders(quad: np.ndarray, lines: list[_Line]) -> tuple[list[int], list[int]]:
-    """The sides (0..3) of a sheet that do not part the paper from the floor, and of those the ones with the
-    floor inside (placed beside the sheet, not over it).
+def _strange_borders(quad: np.ndarray, lines: list[_Line | None]) -> tuple[list[int], list[int]]:
+    """The sides (0..3, of those with a line) of a sheet that do not part the paper from the floor, and of those
+    the ones with the floor inside (placed beside the sheet, not over it).
 
     Inside each side the paper must be brighter than what lies outside (not a line in the floor beside the
     sheet), and what lies outside must look like the floor beyond another side (not the hem of dark trousers
@@ -628,22 +633,34 @@ def _strange_borders(quad: np.ndarray, lines: list[_Line]) -> tuple[list[int], l
     taken from in front of the toes) darkens the paper inside it and the floor beyond it alike: that side's floor
     is compared with the others' darkened as much as its paper is (where its paper is darker than
     ``SHADOW_MAX_BRIGHTNESS`` of the rest); a trouser's hem over the sheet leaves the paper inside it as bright as
-    elsewhere."""
+    elsewhere. And the step across each side must be a sheet's side's (``WEAK_SIDE_SHARE`` of the strongest), not
+    the shading of the paper or the skin's folds that a quad the search completed itself may run along."""
     inner, outer = _inner_outer(quad, lines)
-    change = float(np.median(np.linalg.norm(inner - outer, axis=1)))
+    steps = np.linalg.norm(inner - outer, axis=1)
+    change = float(np.median(steps))
     floor = np.median(outer, axis=0)
     paper = float(np.median(inner, axis=0).mean())
     strange, outside = [], []
-    for i in range(4):
+    sides = [i for i, ln in enumerate(lines) if ln is not None]
+    for i, side in enumerate(sides):
         darker = inner[i].mean() < outer[i].mean() + MIN_CONTRAST
         shade = float(inner[i].mean()) / max(paper, 1e-6)
         shade = shade if shade < SHADOW_MAX_BRIGHTNESS else 1.0
-        unlike = min(np.linalg.norm(outer[i] - shade * outer[j]) for j in range(4) if j != i)
-        if darker or unlike >= FLOOR_MATCH * shade * change:
-            strange.append(i)
+        unlike = min(np.linalg.norm(outer[i] - shade * outer[j]) for j in range(len(sides)) if j != i)
+        weak = steps[i] < WEAK_SIDE_SHARE * steps.max()
+        if darker or weak or unlike >= FLOOR_MATCH * shade * change:
+            strange.append(side)
             if np.linalg.norm(inner[i] - floor) < FLOOR_MATCH * change:
-                outside.append(i)
+                outside.append(side)
     return strange, outside
+
+
+def _moved(ln: _Line) -> tuple[tuple[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]:
+    """The line as (point, direction) with its offset moved by its SD, and with its angle turned by its SD."""
+    normal = np.array([-ln.direction[1], ln.direction[0]])
+    c, s = math.cos(ln.angle_sd), math.sin(ln.angle_sd)
+    turned = np.array([c * ln.direction[0] - s * ln.direction[1], s * ln.direction[0] + c * ln.direction[1]])
+    return (ln.point + ln.offset_sd * normal, ln.direction), (ln.point, turned)
 
 
 def _perturbed_corners(lines: list[_Line]) -> list[np.ndarray]:
@@ -651,10 +668,7 @@ def _perturbed_corners(lines: list[_Line]) -> list[np.ndarray]:
     base = [(ln.point, ln.direction) for ln in lines]
     out = []
     for i, ln in enumerate(lines):
-        normal = np.array([-ln.direction[1], ln.direction[0]])
-        c, s = math.cos(ln.angle_sd), math.sin(ln.angle_sd)
-        turned = np.array([c * ln.direction[0] - s * ln.direction[1], s * ln.direction[0] + c * ln.direction[1]])
-        for moved in ((ln.point + ln.offset_sd * normal, ln.direction), (ln.point, turned)):
+        for moved in _moved(ln):
             trial = list(base)
             trial[i] = moved
             corners = _corners_from_lines(trial)
