@@ -34,6 +34,9 @@ Steps:
    object's size tolerance.
 8. Nothing found with the caller's mask: the same candidates again without it (``search_reference`` says why the
    largest was rejected when nothing is found at all).
+9. Last, a sheet with one side beyond the photo's edge: its far corners placed from the three sides in view and its
+   size, where only one of its sides can be the one in view whole, the focal length's effect on the scale counted
+   (``cut``).
 
 Frames: image pixels with the centre of the top-left pixel at (0, 0); camera OpenCV (x right, y down, z forward),
 mm. The floor frame has its origin at corner 0, x along the first side (the length L), y along the width W,
