@@ -20,6 +20,7 @@ Two things the three sides cannot tell:
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -28,6 +29,9 @@ from footmesh.cues.reference import focal
 from footmesh.cues.reference.objects import ReferenceObject
 from footmesh.cues.reference.params import (
     BORDER_MARGIN_PX,
+    COMPLETION_MIN_COVERAGE,
+    CORNER_RADIUS_PX,
+    CUT_ANGLE_TRUST_DEG,
     CUT_LENGTH_MARGIN,
     DISTANCE_RANGE_MM,
     FIRST_RADIUS_PX,
@@ -43,12 +47,12 @@ from footmesh.cues.reference.pose import rectangle_pose
 from footmesh.cues.reference.quads import _canonical, _classify, _completions, _intersect
 from footmesh.cues.reference.sides import (
     _blank_inside,
-    _completable,
     _continues,
     _curved,
     _is_paper,
     _Line,
     _moved,
+    _paper_floor_lines,
     _side_line,
     _strange_borders,
 )
@@ -89,13 +93,6 @@ def finish_cut(
     least, mean = MIN_COVERAGE[kind]
     if coverage.min() < least or coverage.mean() < mean:
         return reject(f"its sides show along only {100 * coverage.mean():.0f} % of their length (covered)")
-    # the far corners rest on the sides' directions: as for a sheet completed across a hidden corner, each side
-    # must show most of its edge (a side the foot mostly covers is fitted to a stretch, its angle off)
-    if not all(_completable(ln) for ln in shown):
-        return reject(
-            f"a side shows its edge along only {100 * coverage.min():.0f} % of what is in view of it (its direction, "
-            f"on which the far corners rest, is uncertain; least support {100 * supports.min():.0f} %)"
-        )
     if _curved([ln.residual_sd for ln in shown], lengths):
         return reject("a side is not straight (curled, or a curved outline over it)")
     if not _is_paper(visible, lines):
@@ -108,6 +105,19 @@ def finish_cut(
         return reject(f"its side {strange[-1] + 1} of 4 does not part the paper from the floor (clothing over it?)")
     if _continues(blurred, visible, lines, valid):
         return reject("its sides run on past its corners (tiles, planks or a printed grid)")
+    # the far corners rest on the directions of the sides leaving the photo: fitted again through the edge between
+    # paper and floor alone (the foot's outline along a side, where the mask misses it, would turn it), and each
+    # must show that edge along most of what is in view of it (``sides._completable``'s bar)
+    clean, paper_floor = _paper_floor_lines(visible, lines, blurred)
+    cleaned = _visible_from([(ln.point, ln.direction) for ln in clean[1:]], visible, h, w)
+    if cleaned is not None and np.max(np.linalg.norm(cleaned[2:] - visible[2:], axis=1)) <= 3.0 * CORNER_RADIUS_PX[0]:
+        visible, lines = cleaned, clean
+    least_shown = min(paper_floor[1], paper_floor[3])
+    if least_shown < COMPLETION_MIN_COVERAGE:
+        return reject(
+            f"a side leaving the photo shows the paper's edge along only {100 * least_shown:.0f} % of what is in "
+            "view of it (its direction, on which the far corners rest, is uncertain)"
+        )
     reaches = _reaches(visible, K, kind)
     # a completion that is no rectangle in front of the camera is not ruled out by it: where the sides in view are
     # short, their vanishing point is too uncertain to say
@@ -232,11 +242,14 @@ def _fit_rel_sd(
 ) -> float:
     """Relative SD of the floor lengths of the sides in view (``_floor_lengths``) from the three lines' noise: each
     line's offset, then angle, moved by its SD and the sheet completed again (linearised propagation); the largest
-    of the three sides'."""
+    of the three sides'. The sides leaving the photo are trusted in direction to ``CUT_ANGLE_TRUST_DEG`` beyond
+    their fits' own noise."""
     base = _floor_lengths(visible, K, _completed_pose(visible, K, kind, target))
     var = np.zeros(3)
+    trust = math.radians(CUT_ANGLE_TRUST_DEG)
     for i in (1, 2, 3):
-        for moved in _moved(lines[i]):
+        ln = lines[i] if i == 2 else dataclasses.replace(lines[i], angle_sd=math.hypot(lines[i].angle_sd, trust))
+        for moved in _moved(ln):
             trial = [(x.point, x.direction) for x in lines[1:]]
             trial[i - 1] = moved
             quad = _visible_from(trial, visible, h, w)

@@ -497,16 +497,32 @@ def _corner_lines(corners: np.ndarray, lines: list[_Line], blurred: np.ndarray) 
 def _clean_sides(
     corners: np.ndarray, lines: list[_Line], blurred: np.ndarray, perturbed: list[np.ndarray]
 ) -> tuple[np.ndarray, list[_Line], list[np.ndarray], np.ndarray]:
-    """A sheet's sides fitted again through the edges between the paper and the floor only (``_stretch_line`` along
-    the whole side): where the leg or the foot lies over a side and the mask misses it, their outline no longer
-    pulls the line. A side that shows too little of its own edge keeps its line. Also returns (4,) the fraction
-    of each side that shows that edge (0 where too little)."""
-    # the paper's colour from all four sides (a side the leg covers has the skin's as its own)
+    """A sheet's sides fitted again through the edges between the paper and the floor only (``_paper_floor_lines``):
+    where the leg or the foot lies over a side and the mask misses it, their outline no longer pulls the line. Also
+    returns (4,) the fraction of each side that shows that edge (0 where too little)."""
+    clean, shown = _paper_floor_lines(corners, lines, blurred)
+    new = _corners_from_lines([(ln.point, ln.direction) for ln in clean])
+    if new is None or np.max(np.linalg.norm(new - corners, axis=1)) > 3.0 * CORNER_RADIUS_PX[0]:
+        return corners, lines, perturbed, shown
+    return new, clean, _perturbed_corners(clean), shown
+
+
+def _paper_floor_lines(
+    corners: np.ndarray, lines: list[_Line | None], blurred: np.ndarray
+) -> tuple[list[_Line | None], np.ndarray]:
+    """Each side's line (None kept None) fitted again along the whole side through the edges between the paper and
+    the floor only (``_stretch_line``; the paper's colour from all the sides, as the leg covering one side gives it
+    the skin's as its own); a side that shows too little of that edge keeps its line. And (4,) the fraction of
+    each side that shows that edge (0 where too little, or no line)."""
     inner, _ = _inner_outer(corners, lines)
     paper = np.median(inner, axis=0)
     centre = corners.mean(axis=0)
-    clean, shown = [], []
+    clean: list[_Line | None] = []
+    shown = np.zeros(len(lines))
     for i, ln in enumerate(lines):
+        if ln is None:
+            clean.append(None)
+            continue
         p, q = corners[i], corners[(i + 1) % 4]
         t = q - p
         if (centre - p) @ np.array([-t[1], t[0]]) > 0:  # the paper lies on the +n (far) side
@@ -517,11 +533,8 @@ def _clean_sides(
         along = np.arange(END_SKIP * length + 1.0, (1.0 - END_SKIP) * length - 1.0 + 1e-9, 1.0)
         line = _stretch_line(blurred, p, q, along, ln) if len(along) >= 6 else None
         clean.append(ln if line is None else line)
-        shown.append(0.0 if line is None else line.coverage)
-    new = _corners_from_lines([(ln.point, ln.direction) for ln in clean])
-    if new is None or np.max(np.linalg.norm(new - corners, axis=1)) > 3.0 * CORNER_RADIUS_PX[0]:
-        return corners, lines, perturbed, np.array(shown)
-    return new, clean, _perturbed_corners(clean), np.array(shown)
+        shown[i] = 0.0 if line is None else line.coverage
+    return clean, shown
 
 
 def _bowed_corners(corners: np.ndarray, lines: list[_Line], blurred: np.ndarray) -> list[tuple[_Line, _Line]] | None:
