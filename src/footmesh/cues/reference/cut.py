@@ -33,7 +33,6 @@ from footmesh.cues.reference.params import (
     CORNER_RADIUS_PX,
     CUT_ANGLE_TRUST_DEG,
     CUT_LENGTH_MARGIN,
-    DISTANCE_RANGE_MM,
     FIRST_RADIUS_PX,
     MAX_SCALE_REL_SD,
     MIN_COVERAGE,
@@ -43,7 +42,7 @@ from footmesh.cues.reference.params import (
     SIZE_REL_SD,
     SIZES_MM,
 )
-from footmesh.cues.reference.pose import rectangle_pose
+from footmesh.cues.reference.pose import placed, rectangle_pose
 from footmesh.cues.reference.quads import _canonical, _classify, _completions, _intersect
 from footmesh.cues.reference.sides import (
     _blank_inside,
@@ -130,14 +129,11 @@ def finish_cut(
     local = _local(_far_corners(visible, K, kind, target), K, kind)
     if local is None:
         return reject("its corners are no rectangle's image")
-    solved = rectangle_pose(local, kind, K)
-    if solved is None:
-        return reject("no pose of the object fits its corners")
-    pose, reproj = solved
+    solved = placed(local, kind, K)
+    if isinstance(solved, str):
+        return reject(solved)
+    pose, reproj, _ = solved
     length, width = SIZES_MM[kind]
-    distance = float(np.linalg.norm(pose[:3, :3] @ [length / 2, width / 2, 0.0] + pose[:3, 3]))
-    if not DISTANCE_RANGE_MM[0] <= distance <= DISTANCE_RANGE_MM[1]:
-        return reject(f"it would lie {distance / 1000:.2f} m from the camera")
     fit_sd = _fit_rel_sd(lines, visible, K, kind, target, h, w)
     focal_rel = _focal_rel_effect(visible, K, kind, target, focal_prior_log_sd)
     if not fit_sd <= MAX_SCALE_REL_SD:

@@ -16,7 +16,6 @@ from footmesh.cues.reference.params import (
     ASPECT_TOLERANCE,
     BORDER_MARGIN_PX,
     COMPLETED_MIN_SIDE_SUPPORT,
-    DISTANCE_RANGE_MM,
     FIRST_RADIUS_PX,
     FOCAL_KINDS,
     MAX_ANGLE_TOLERANCE_DEG,
@@ -32,7 +31,7 @@ from footmesh.cues.reference.params import (
     SIZE_REL_SD,
     SIZES_MM,
 )
-from footmesh.cues.reference.pose import _distance, _shape_sd, rectangle_pose
+from footmesh.cues.reference.pose import _distance, _shape_sd, placed
 from footmesh.cues.reference.quads import _classify, _corner_points_many, _inside, _parallelogram, _signed_area
 from footmesh.cues.reference.sides import (
     _blank_inside,
@@ -221,14 +220,11 @@ def _finish_quad(
         if _classify(local, K, RECTANGLES, tol_ratio=tol_ratio, tol_angle=tol_angle) == (kind, 0):
             corners, perturbed = local, local_perturbed
             at_corner = [(j, ln) for j, pair in enumerate(bowed) for ln in pair]
-    solved = rectangle_pose(corners, kind, K)
-    if solved is None:
-        return reject("no pose of the object fits its corners")
-    pose, reproj = solved
+    solved = placed(corners, kind, K)
+    if isinstance(solved, str):
+        return reject(solved)
+    pose, reproj, distance = solved
     length, width = SIZES_MM[kind]
-    distance = float(np.linalg.norm(pose[:3, :3] @ [length / 2, width / 2, 0.0] + pose[:3, 3]))
-    if not DISTANCE_RANGE_MM[0] <= distance <= DISTANCE_RANGE_MM[1]:
-        return reject(f"it would lie {distance / 1000:.2f} m from the camera")
     fit_sd = math.sqrt(sum((_distance(c, kind, K) - distance) ** 2 for c in perturbed)) / distance
     if not fit_sd <= MAX_SCALE_REL_SD:
         return reject(f"its corners fix the scale only to {100 * fit_sd:.1f} %")

@@ -9,7 +9,7 @@ import cv2
 import numpy as np
 
 from footmesh.cues.reference.objects import ReferenceObject
-from footmesh.cues.reference.params import SIZES_MM
+from footmesh.cues.reference.params import DISTANCE_RANGE_MM, SIZES_MM
 from footmesh.cues.reference.quads import _parallelogram
 
 
@@ -35,6 +35,21 @@ def rectangle_pose(corners: np.ndarray, kind: str, K: np.ndarray) -> tuple[np.nd
     proj, _ = cv2.projectPoints(obj, rvec, tvec, K, None)
     reproj = float(np.sqrt(np.mean(np.sum((proj.reshape(4, 2) - corners) ** 2, axis=1))))
     return pose, reproj
+
+
+def placed(corners: np.ndarray, kind: str, K: np.ndarray) -> tuple[np.ndarray, float, float] | str:
+    """The ``kind`` object's pose from its (4, 2) px corners in local order: (``cam_from_floor`` (4, 4), RMS
+    reprojection px, camera-to-centre distance mm), or why there is none (in words): no pose, or one outside
+    ``DISTANCE_RANGE_MM``."""
+    solved = rectangle_pose(corners, kind, K)
+    if solved is None:
+        return "no pose of the object fits its corners"
+    pose, reprojection = solved
+    length, width = SIZES_MM[kind]
+    distance = float(np.linalg.norm(pose[:3, :3] @ [length / 2, width / 2, 0.0] + pose[:3, 3]))
+    if not DISTANCE_RANGE_MM[0] <= distance <= DISTANCE_RANGE_MM[1]:
+        return f"it would lie {distance / 1000:.2f} m from the camera"
+    return pose, reprojection, distance
 
 
 def seen_with(found: ReferenceObject, K: np.ndarray, focal_log_sd: float) -> ReferenceObject | None:
