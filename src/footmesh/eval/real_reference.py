@@ -5,8 +5,9 @@ sheet's four corners in px of the photo scaled to ``MARKED_SIDE_PX`` on its long
 the way ``footmesh measure`` does it: at the pipeline's working size, with the first pass's foot silhouette
 (dilated) as the excluded region. Two errors are reported: the corners' distance from the marked ones (px at
 ``MARKED_SIDE_PX``), and the relative error of the camera-to-sheet-centre distance against the pose the marked
-corners give, which every millimetre measured through the floor inherits. These photos are for evaluation only:
-nothing here trains or tunes on them.
+corners give, which every millimetre measured through the floor inherits. The photos are also scored turned by
+quarter turns (``score_turned``) and cropped so that the photo's edge cuts the sheet (``score_cropped``). These
+photos are for evaluation only: nothing here trains or tunes on them.
 """
 
 from __future__ import annotations
