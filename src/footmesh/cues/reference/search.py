@@ -21,7 +21,6 @@ from footmesh.cues.reference.quads import (
     _canonical,
     _check_image,
     _check_intrinsics,
-    _signed_area,
     white_balanced,
 )
 from footmesh.cues.reference.sides import _blank_inside, _fit_sides, _paper_beside, remembered_profiles
@@ -220,7 +219,7 @@ def _try_groups(
                     focal_prior_log_sd=focal_prior_log_sd,
                 )
             if result is None:
-                area = abs(_signed_area(quad))
+                area = _area_in_photo(quad, *blurred.shape[:2])  # a cut sheet's rough quad reaches past the photo
                 if why and (not largest_rejected or area > largest_rejected[0][0]):
                     largest_rejected[:] = [(area, why[0])]
                 continue
@@ -266,3 +265,9 @@ def _try_groups(
         return ReferenceSearch(None)
     area, why = largest_rejected[0]
     return ReferenceSearch(None, why, area)
+
+
+def _area_in_photo(quad: np.ndarray, h: int, w: int) -> float:
+    """Area (px) of the part of a convex (4, 2) px quad inside the (h, w) photo."""
+    photo = np.float32([[0, 0], [w, 0], [w, h], [0, h]])
+    return float(cv2.intersectConvexConvex(np.asarray(quad, np.float32), photo)[0])
