@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from footmesh.cues.reference import search_reference
+from footmesh.cues.reference.search import _area_in_photo
 from footmesh.geometry.camera import pixel_rays
 from footmesh.synth.render import Renderer
 from footmesh.synth.scene import view_config
@@ -87,6 +88,7 @@ def test_a_sheet_cut_along_its_length_says_which_side_cannot_be_told():
     searched = search_reference(rgb, K, exclude_mask=mask)
     assert searched.found is None
     assert "runs off the photo's edge and which of its sides is cut cannot be told" in searched.rejected
+    assert 0.1 < searched.rejected_area <= 1.0  # its share of the photo: the part in view
 
 
 def test_an_uncertain_focal_length_widens_a_cut_sheets_scale_sd_and_a_guessed_one_refuses_it():
@@ -107,3 +109,13 @@ def test_an_uncertain_focal_length_widens_a_cut_sheets_scale_sd_and_a_guessed_on
     searched = search_reference(rgb, K, exclude_mask=mask, focal_prior_log_sd=0.1)
     assert searched.found is None
     assert "depends on the focal length" in searched.rejected and "--intrinsics" in searched.rejected
+
+
+def test_a_rejected_cut_sheets_share_of_the_photo_is_the_part_in_view():
+    """A cut sheet's rough quad reaches past the photo (its side along the edge runs on beyond the photo's corner):
+    the message's "N % of the photo" counts only the part inside (a cropped real photo once read 132 %)."""
+    quad = np.array([[-238.0, 0.0], [526.0, 0.0], [525.0, 472.0], [82.0, 472.0]])
+    # its left side crosses x = 0 at y = 472 * 238 / 320
+    x, y = np.array([[0.0, 0.0], [526.0, 0.0], [525.0, 472.0], [82.0, 472.0], [0.0, 472.0 * 238.0 / 320.0]]).T
+    inside = 0.5 * abs(float(np.dot(x, np.roll(y, -1)) - np.dot(y, np.roll(x, -1))))
+    assert _area_in_photo(quad, 585, 640) == pytest.approx(inside, rel=1e-4)
