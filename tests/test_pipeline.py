@@ -726,7 +726,8 @@ def test_a_real_photo_whose_edge_cuts_the_sheet_is_measured_and_says_so(tmp_path
     result = measure_photo(crop, tmp_path / "out", intrinsics=crop.with_suffix(".K.json"))
     low, high = MeasureConfig().plausible_length_mm
     assert result["scaled"] and result["scale_source"] == "a4"
-    assert any("edge cuts off one side of an A4 sheet" in message for message in result["messages"])
+    cut = [message for message in result["messages"] if "edge cuts off one side of an A4 sheet" in message]
+    assert cut and "a sheet of another size" in cut[0]  # what three sides cannot tell, said
     assert min(y for _, y in result["reference"]["corners_px"]) < 0  # the far corners lie above the photo
     assert low <= result["measurements"]["stick_length"]["value_mm"] <= high
 

@@ -445,7 +445,8 @@ def _run_stages(photo: Photo, side: str, config: MeasureConfig, input: str) -> t
             notes.append(
                 f"the photo's edge cuts off one side of {references.kind(reference.kind).described}: its far corners "
                 f"were placed from its known size and its other sides (scale known to "
-                f"{100 * reference.scale_rel_sd:.1f} %); for the best figures photograph all of it"
+                f"{100 * reference.scale_rel_sd:.1f} %, if it is one: a sheet of another size, cut, looks the same and "
+                "gives other millimetres); for the best figures photograph all of it"
             )
         if reference is not None and config.clear_paper and references.kind(reference.kind).detector == "sheet":
             sheet_px = reference.corners_px
