@@ -110,7 +110,7 @@ def finish_cut(
         return reject("its sides run on past its corners (tiles, planks or a printed grid)")
     # the far corners rest on the directions of the sides leaving the photo: fitted again through the edge between
     # paper and floor alone (the foot's outline along a side, where the mask misses it, would turn it), and each
-    # must show that edge along most of what is in view of it (``sides._completable``'s bar)
+    # must show that edge along at least half of what is in view of it (a hidden corner's completion's bar)
     clean, paper_floor = _paper_floor_lines(visible, lines, blurred)
     cleaned = _visible_from([(ln.point, ln.direction) for ln in clean[1:]], visible, h, w)
     if cleaned is not None and np.max(np.linalg.norm(cleaned[2:] - visible[2:], axis=1)) <= 3.0 * CORNER_RADIUS_PX[0]:
