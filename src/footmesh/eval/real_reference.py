@@ -156,7 +156,7 @@ def score_turned(
     h, w = rgb.shape[:2]
     to_marked = MARKED_SIDE_PX / max(h, w)
     turned_path = Path(folder) / f"{Path(path).stem}_turned{quarter_turns % 4}.png"
-    cv2.imwrite(str(turned_path), cv2.cvtColor(np.ascontiguousarray(np.rot90(rgb, quarter_turns)), cv2.COLOR_RGB2BGR))
+    _write_png(turned_path, np.rot90(rgb, quarter_turns))
     pixels = turned_pixels(w, h, quarter_turns)
     turned_px = (marked_px / to_marked) @ pixels[:2, :2].T + pixels[:2, 2]
     return score_photo(turned_path, turned_px * to_marked)
@@ -171,12 +171,10 @@ def score_cropped(
     written to ``folder`` (PNG, lossless) with its intrinsics: the focal length the whole sheet gives the photo
     (its perspective; the photos carry no EXIF) and the photo's principal point, where the crop has it, so that
     only the sheet's far side is missing."""
-    from footmesh.load import load_photo
-
     photo, K, to_photo, whole, _ = pipeline_search(path)
     if whole.found is None:
         raise ValueError(f"{Path(path).name}: no sheet found in the whole photo to take its focal length from")
-    rgb = load_photo(path).rgb
+    rgb = photo.rgb
     h, w = rgb.shape[:2]
     to_marked = MARKED_SIDE_PX / max(h, w)
     corners = marked_px / to_marked
@@ -191,8 +189,8 @@ def score_cropped(
     else:
         stop[axis] = cut
     cropped_name = Path(folder) / f"{Path(path).stem}_{edge}{round(100 * depth)}"
-    image = np.ascontiguousarray(rgb[start[1] : stop[1], start[0] : stop[0]])
-    cv2.imwrite(str(cropped_name.with_suffix(".png")), cv2.cvtColor(image, cv2.COLOR_RGB2BGR))
+    image = rgb[start[1] : stop[1], start[0] : stop[0]]
+    _write_png(cropped_name.with_suffix(".png"), image)
     focal = float(whole.found.K[0, 0]) * to_photo
     centre = K[:2, 2] * to_photo - start
     intrinsics = {"fx": focal, "fy": focal, "cx": float(centre[0]), "cy": float(centre[1])}
@@ -201,6 +199,11 @@ def score_cropped(
     k_path.write_text(json.dumps(intrinsics))
     crop_to_marked = MARKED_SIDE_PX / max(image.shape[:2])
     return score_photo(cropped_name.with_suffix(".png"), (corners - start) * crop_to_marked, k_path)
+
+
+def _write_png(path: Path, rgb: np.ndarray) -> None:
+    """An (H, W, 3) uint8 RGB image (any strides) written as a PNG: the turned and cropped photos, losslessly."""
+    cv2.imwrite(str(path), cv2.cvtColor(np.ascontiguousarray(rgb), cv2.COLOR_RGB2BGR))
 
 
 def score_set(photos_dir: str | os.PathLike, corners_json: str | os.PathLike) -> list[RealReferenceScore]:

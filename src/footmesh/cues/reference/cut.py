@@ -138,8 +138,9 @@ def finish_cut(
         return reject(solved)
     pose, reproj, _ = solved
     length, width = SIZES_MM[kind]
-    fit_sd = _fit_rel_sd(lines, visible, K, kind, target, h, w)
-    focal_rel = _focal_rel_effect(visible, K, kind, target, focal_prior_log_sd)
+    seen_mm = _floor_lengths(visible, K, pose)  # the sides in view on the sheet's floor: what the SDs compare to
+    fit_sd = _fit_rel_sd(lines, visible, K, kind, target, seen_mm, h, w)
+    focal_rel = _focal_rel_effect(visible, K, kind, target, focal_prior_log_sd, seen_mm)
     if not fit_sd <= MAX_SCALE_REL_SD:
         return reject(f"its sides in view fix the scale only to {100 * fit_sd:.1f} %")
     if not math.hypot(fit_sd, focal_rel) <= MAX_SCALE_REL_SD:
@@ -238,13 +239,19 @@ def _reaches(visible: np.ndarray, K: np.ndarray, kind: str) -> list[float]:
 
 
 def _fit_rel_sd(
-    lines: list[_Line | None], visible: np.ndarray, K: np.ndarray, kind: str, target: int, h: int, w: int
+    lines: list[_Line | None],
+    visible: np.ndarray,
+    K: np.ndarray,
+    kind: str,
+    target: int,
+    base: np.ndarray,
+    h: int,
+    w: int,
 ) -> float:
     """Relative SD of the floor lengths of the sides in view (``_floor_lengths``) from the three lines' noise: each
     line's offset, then angle, moved by its SD and the sheet completed again (linearised propagation); the largest
-    of the three sides'. The sides leaving the photo are trusted in direction to ``CUT_ANGLE_TRUST_DEG`` beyond
-    their fits' own noise."""
-    base = _floor_lengths(visible, K, _completed_pose(visible, K, kind, target))
+    of the three sides' (``base`` (3,): their lengths, mm, through the sheet found). The sides leaving the photo
+    are trusted in direction to ``CUT_ANGLE_TRUST_DEG`` beyond their fits' own noise."""
     var = np.zeros(3)
     trust = math.radians(CUT_ANGLE_TRUST_DEG)
     for i in (1, 2, 3):
@@ -297,13 +304,14 @@ def _floor_lengths(visible: np.ndarray, K: np.ndarray, pose: np.ndarray | None) 
     return np.linalg.norm(points[[1, 2, 3]] - points[[2, 3, 0]], axis=1)
 
 
-def _focal_rel_effect(visible: np.ndarray, K: np.ndarray, kind: str, target: int, log_sd: float) -> float:
+def _focal_rel_effect(
+    visible: np.ndarray, K: np.ndarray, kind: str, target: int, log_sd: float, base: np.ndarray
+) -> float:
     """How much (relative) the floor lengths of the sides in view change when the sheet is completed, and they are
     seen, with the focal length one SD (``log_sd``) longer or shorter: the scale's error that the focal length's
-    uncertainty brings (the largest of the sides'; 0 when it is known)."""
+    uncertainty brings (the largest of the sides', against their lengths ``base`` (3,) mm; 0 when it is known)."""
     if log_sd <= 0:
         return 0.0
-    base = _floor_lengths(visible, K, _completed_pose(visible, K, kind, target))
     worst = 0.0
     for sign in (1.0, -1.0):
         other_K = focal.with_focal_scale(K, math.exp(sign * log_sd))
