@@ -15,8 +15,11 @@ error of the camera-to-sheet distance against the marked corners' pose; the same
 turns (a phone held sideways or upside down), where the search must find the same sheet; and cropped so that the
 photo's edge cuts the sheet (a photo framed on the foot), where its far corners are placed from its other sides.
 
-Run: ``python benchmarks/bench_reference.py [--n 60] [--size 640] [--seed 4242] [--views random front ood]
-[--real DIR]``.
+A4 and US letter sheets told apart (by their side ratio, 1.414 and 1.294): photos of each searched for every kind,
+as ``footmesh measure`` does by default, and for that sheet alone (``--reference``), as the user who names it.
+
+Run: ``python benchmarks/bench_reference.py [--n 60] [--n-sheets 30] [--size 640] [--seed 4242] [--views random front
+ood] [--real DIR]``.
 """
 
 from __future__ import annotations
@@ -43,40 +46,55 @@ def floor_distance_mm(normal: np.ndarray, point: np.ndarray) -> float:
     return float(abs(normal @ point) / np.linalg.norm(normal))
 
 
+def _config(views: str, size: int, kind: str):
+    """The renderer's settings for ``views`` ("random" or a name of ``synth.scene.VIEW_PRESETS``) and object."""
+    from footmesh.synth.scene import SynthConfig, view_config
+
+    if views == "random":
+        return SynthConfig(size=size, reference=kind, frame_reference=True)
+    return view_config(views, size=size, reference=kind)
+
+
+def _searched(sample: dict, kinds: tuple[str, ...] | None = None, focal_log_sd: float = 0.0) -> dict:
+    """The detector on one rendered photo (``kinds``: those looked for; None: every kind; ``focal_log_sd``: how
+    well its focal length is known), as the pipeline calls it: the kind found (None), whether it was assumed
+    (``kind_assumed``), the relative error of its camera-to-floor distance, visible corners, seconds."""
+    from footmesh import references
+    from footmesh.cues.reference import detect_reference
+
+    corners = sample["ref_corners3d"].astype(np.float64)
+    true_normal = np.cross(corners[1] - corners[0], corners[3] - corners[0])
+    true_distance = floor_distance_mm(true_normal, corners[0])
+    exclude = cv2.dilate(sample["silhouette"].astype(np.uint8), np.ones((15, 15), np.uint8)) > 0
+    t = time.perf_counter()
+    found = detect_reference(
+        sample["rgb"], sample["K"], kinds or references.NAMES, exclude_mask=exclude, focal_prior_log_sd=focal_log_sd
+    )
+    rec = {
+        "kind": None if found is None else found.kind,
+        "assumed": found is not None and found.kind_assumed,
+        "corners_visible": int(sample["ref_corners_visible"].sum()),
+        "seconds": time.perf_counter() - t,
+        "rel_error": float("nan"),
+    }
+    if found is not None:
+        pose = found.cam_from_floor
+        rec["rel_error"] = floor_distance_mm(pose[:3, 2], pose[:3, 3]) / true_distance - 1.0
+    return rec
+
+
 def run(n: int, size: int, seed: int, views: str = "random") -> dict[str, list[dict]]:
     """One record per photo and kind: found, relative scale error, visible corners, seconds; ``views``: "random" or
     a name of ``synth.scene.VIEW_PRESETS``."""
-    from footmesh.cues.reference import detect_reference
     from footmesh.eval.measure import MODES
     from footmesh.synth.render import Renderer
-    from footmesh.synth.scene import SynthConfig, view_config
-
-    def config(kind: str) -> SynthConfig:
-        if views == "random":
-            return SynthConfig(size=size, reference=kind, frame_reference=True)
-        return view_config(views, size=size, reference=kind)
 
     records: dict[str, list[dict]] = {k: [] for k in KINDS}
-    renderers = {k: Renderer(config(k)) for k in KINDS}
+    renderers = {k: Renderer(_config(views, size, k)) for k in KINDS}
     for i in range(n):
         kind = KINDS[i % 3]
-        sample = renderers[kind].render(seed + MODES.index("rgb_ref"), i)
-        corners = sample["ref_corners3d"].astype(np.float64)
-        true_normal = np.cross(corners[1] - corners[0], corners[3] - corners[0])
-        true_distance = floor_distance_mm(true_normal, corners[0])
-        exclude = cv2.dilate(sample["silhouette"].astype(np.uint8), np.ones((15, 15), np.uint8)) > 0
-        t = time.perf_counter()
-        found = detect_reference(sample["rgb"], sample["K"], exclude_mask=exclude)
-        rec = {
-            "found": found is not None and found.kind == kind,
-            "wrong_kind": found is not None and found.kind != kind,
-            "corners_visible": int(sample["ref_corners_visible"].sum()),
-            "seconds": time.perf_counter() - t,
-            "rel_error": float("nan"),
-        }
-        if found is not None:
-            pose = found.cam_from_floor
-            rec["rel_error"] = floor_distance_mm(pose[:3, 2], pose[:3, 3]) / true_distance - 1.0
+        rec = _searched(renderers[kind].render(seed + MODES.index("rgb_ref"), i))
+        rec |= {"found": rec["kind"] == kind, "wrong_kind": rec["kind"] not in (None, kind)}
         records[kind].append(rec)
     return records
 
@@ -99,6 +117,56 @@ def format_table(records_by_views: dict[str, dict[str, list[dict]]]) -> str:
             f"{sum(r['found'] for r in whole)} / {len(whole)} | {sum(r['wrong_kind'] for r in recs)} | {err} | "
             f"{ms:.0f} |"
         )
+    return "\n".join(lines)
+
+
+SHEETS = ("a4", "letter")
+
+
+EXIF_FOCAL_LOG_SD = 0.1
+"""The focal length's SD (log) where it comes from a photo's EXIF (``MeasureConfig.focal_prior_log_sd``)."""
+
+
+def run_sheets(n: int, size: int, seed: int, views: str) -> list[tuple[str, str, str, list[dict]]]:
+    """(sheet, searched, focal length, records) of ``n`` photos of each sheet (``SHEETS``) searched for every kind
+    ("any") and for that sheet alone (as ``footmesh measure --reference`` names it), with the focal length known
+    ("K.json") and known as EXIF's is ("EXIF", ``EXIF_FOCAL_LOG_SD``)."""
+    from footmesh.eval.measure import MODES
+    from footmesh.synth.render import Renderer
+
+    rows = []
+    for sheet in SHEETS:
+        renderer = Renderer(_config(views, size, sheet))
+        samples = [renderer.render(seed + MODES.index("rgb_ref"), i) for i in range(n)]
+        for searched in ("any", sheet):
+            kinds = None if searched == "any" else (sheet,)
+            for focal, log_sd in (("K.json", 0.0), ("EXIF", EXIF_FOCAL_LOG_SD)):
+                rows.append((sheet, searched, focal, [_searched(s, kinds, log_sd) for s in samples]))
+    return rows
+
+
+def format_sheets_table(rows_by_views: dict[str, list[tuple[str, str, str, list[dict]]]]) -> str:
+    """Markdown table of ``run_sheets``: what each sheet was found as (assumed: completed or cut, its proportions
+    not seen), and the scale errors of the right and of the wrong names."""
+    lines = [
+        "| views | sheet | searched for | focal length | photos | as A4 (assumed) | as letter (assumed) | none | "
+        "scale error % median (max): right kind | wrong kind |",
+        "|---|---|---|---|---:|---:|---:|---:|---:|---:|",
+    ]
+    for views, rows in rows_by_views.items():
+        for sheet, searched, focal, recs in rows:
+            right = [abs(r["rel_error"]) * 100 for r in recs if r["kind"] == sheet]
+            wrong = [100 * r["rel_error"] for r in recs if r["kind"] is not None and r["kind"] != sheet]
+            cells = [
+                f"{sum(r['kind'] == k for r in recs)} ({sum(r['kind'] == k and r['assumed'] for r in recs)})"
+                for k in SHEETS
+            ]
+            right_cell = f"{statistics.median(right):.2f} ({max(right):.2f})" if right else "-"
+            wrong_cell = ", ".join(f"{e:+.1f}" for e in wrong) or "-"
+            lines.append(
+                f"| {views} | {sheet} | {searched} | {focal} | {len(recs)} | {cells[0]} | {cells[1]} | "
+                f"{sum(r['kind'] is None for r in recs)} | {right_cell} | {wrong_cell} |"
+            )
     return "\n".join(lines)
 
 
@@ -209,6 +277,7 @@ def format_cropped_table(photos: Path) -> str:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--n", type=int, default=60, help="photos (cycling A4, card, marker)")
+    parser.add_argument("--n-sheets", type=int, default=30, help="photos of each sheet (A4, letter) per view set")
     parser.add_argument("--size", type=int, default=640, help="photo side, px")
     parser.add_argument("--seed", type=int, default=4242, help="seed of the photos (eval measure's default)")
     parser.add_argument(
@@ -223,6 +292,8 @@ def main() -> None:
     )
     args = parser.parse_args()
     print(format_table({views: run(args.n, args.size, args.seed, views) for views in args.views}))
+    print()
+    print(format_sheets_table({views: run_sheets(args.n_sheets, args.size, args.seed, views) for views in args.views}))
     print()
     if args.real.is_dir():
         print(format_real_table(args.real))

@@ -650,11 +650,11 @@ def test_a_plain_photo_of_a_small_dark_foot_is_found_on_a_closer_look(tmp_path):
     from footmesh.synth.render import Renderer
     from footmesh.synth.scene import view_config
 
-    sample = Renderer(view_config("ood", size=640, reference=REFERENCES[32 % 3])).render(4242, 32)
+    sample = Renderer(view_config("ood", size=640, reference=REFERENCES[32 % len(REFERENCES)])).render(4242, 32)
     paths = write_inputs(sample, tmp_path / "in", with_depth=False)
     truth = true_measurements(sample["shape"], "right" if int(sample["side"]) else "left")["stick_length"]
     result = measure_photo(paths["image"], tmp_path / "out", intrinsics=paths["intrinsics"], input="rgb")
-    assert result["scale_source"] == REFERENCES[32 % 3]
+    assert result["scale_source"] == REFERENCES[32 % len(REFERENCES)]
     assert abs(result["measurements"]["stick_length"]["value_mm"] - truth) < 6.0
 
 
@@ -728,8 +728,15 @@ def test_a_real_photo_whose_edge_cuts_the_sheet_is_measured_and_says_so(tmp_path
     assert result["scaled"] and result["scale_source"] == "a4"
     cut = [message for message in result["messages"] if "edge cuts off one side of an A4 sheet" in message]
     assert cut and "a sheet of another size" in cut[0]  # what three sides cannot tell, said
+    assert "if it is a US letter sheet, say so: --reference letter" in cut[0]
     assert min(y for _, y in result["reference"]["corners_px"]) < 0  # the far corners lie above the photo
     assert low <= result["measurements"]["stick_length"]["value_mm"] <= high
+    # named a letter sheet, it is completed as one: other millimetres, and nothing more to say about its kind
+    letter = measure_photo(crop, tmp_path / "letter", intrinsics=crop.with_suffix(".K.json"), reference="letter")
+    assert letter["scale_source"] == "letter" and letter["request"]["reference"] == "letter"
+    cut = [message for message in letter["messages"] if "edge cuts off one side of a US letter sheet" in message]
+    assert cut and "--reference" not in cut[0]
+    assert letter["measurements"]["stick_length"]["value_mm"] != result["measurements"]["stick_length"]["value_mm"]
 
 
 def _feet_seen_from_above(splay_deg: float, step_mm: tuple[float, float], roll_deg: float) -> dict[str, np.ndarray]:

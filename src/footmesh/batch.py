@@ -100,10 +100,12 @@ def measure_batch(
     print_json: bool = False,
     embedded_depth: bool = True,
     same_foot: bool = False,
+    reference: str = "auto",
 ) -> int:
     """Measure every photo (skipping those already measured into their folder); returns the exit code.
 
     ``same_foot``: the photos show one foot; also combine them (``same_foot.json`` in ``out``, footmesh.same_foot).
+    ``reference``: the kind of reference object in the photos (``auto``: any; ``pipeline.measure_photo``).
     """
     out_dir = check_output(out)
     folders = output_folders(images, out_dir)
@@ -114,7 +116,7 @@ def measure_batch(
         if intrinsics:
             k = intrinsics[0] if len(intrinsics) == 1 else intrinsics[i]
         depth = depths[i] if depths else None
-        request = request_options(side, depth_unit, "auto", embedded_depth)
+        request = request_options(side, depth_unit, "auto", embedded_depth, reference)
         previous = _done(folder, _wanted(image, depth, k, request))
         if previous is not None:
             log.info("%s: already measured in %s (delete it to measure again)", image, folder)

@@ -44,7 +44,7 @@ def _add_measure_command(sub: argparse._SubParsersAction) -> None:
         help="measure the foot in one or more photos: mesh, joints, measurements, shoe sizes",
         description="Measure the foot in each photo; writes result.json, mesh.obj, mesh.glb, canonical.obj and "
         "overlay.png per photo (docs/measure.md). Millimetres come only from a depth map or a reference object "
-        "(A4 sheet, bank card, printed marker) in the photo; otherwise the result is unscaled.",
+        f"({references.described_choices()}) in the photo; otherwise the result is unscaled.",
     )
     m.add_argument(
         "images", nargs="+", metavar="IMAGE", help=f"photo(s), each {accepted.PHOTO_HELP} (EXIF orientation honoured)"
@@ -63,6 +63,13 @@ def _add_measure_command(sub: argparse._SubParsersAction) -> None:
     m.add_argument("--depth-unit", choices=("mm", "m"), default="mm", help="unit of float .npy depth (default mm)")
     m.add_argument("--intrinsics", action="append", help="K.json per photo (or one for all): fx, fy, cx, cy, ...")
     m.add_argument("--side", choices=("left", "right", "auto"), default="auto", help="which foot (default auto)")
+    m.add_argument(
+        "--reference",
+        choices=("auto", *references.NAMES),
+        default="auto",
+        help="the reference object in the photos, only it looked for (default auto: any; a sheet with a corner "
+        "hidden or cut off is then taken to be A4)",
+    )
     m.add_argument("--out", default="footmesh_out", help="output folder (default footmesh_out)")
     m.add_argument("--json", action="store_true", help="print the result JSON to stdout")
     m.set_defaults(func=_run_measure)
@@ -90,6 +97,7 @@ def _run_measure(args: argparse.Namespace) -> int:
         print_json=args.json,
         embedded_depth=not args.no_embedded_depth,
         same_foot=args.same_foot,
+        reference=args.reference,
     )
 
 

@@ -351,16 +351,19 @@ def measure_photo(
     input: str = "auto",
     config: MeasureConfig | None = None,
     embedded_depth: bool = True,
+    reference: str = "auto",
 ) -> dict:
     """Measure the foot in one photo; write the result files into ``out_dir`` and return the result dict.
 
     ``input``: which networks to use: ``auto`` (RGB-D when a depth map is given, else RGB), or ``rgb``,
     ``rgbd``, ``depth`` (the depth map alone; the photo only serves for the overlay). ``embedded_depth``: use a
     metric depth map stored inside the photo (iPhone HEIC, Android depth JPEG) when no ``depth`` is given.
+    ``reference``: the reference object in a plain photo, one of ``references.NAMES`` (only it is looked for), or
+    ``auto``: any of them.
     """
     start = time.perf_counter()
     photo = load_photo(image, depth=depth, depth_unit=depth_unit, intrinsics=intrinsics, embedded_depth=embedded_depth)
-    request = request_options(side, depth_unit, input, embedded_depth)
+    request = request_options(side, depth_unit, input, embedded_depth, reference)
     return measure_loaded_photo(photo, out_dir, request, config, started=start)
 
 
@@ -376,10 +379,12 @@ def measure_loaded_photo(
     began, for the result's ``seconds``."""
     config = config or MeasureConfig()
     start = time.perf_counter() if started is None else started
-    side, input = str(request["side"]), str(request["input"])
+    side, input, reference = str(request["side"]), str(request["input"]), str(request["reference"])
     if side not in ("left", "right", "auto"):
         raise InputError(f"side must be left, right or auto, got {side!r}")
-    measured, files = run_pipeline(photo, side, config, input)
+    if reference != "auto" and reference not in references.NAMES:
+        raise InputError(f"reference must be auto or one of {', '.join(references.NAMES)}, got {reference!r}")
+    measured, files = run_pipeline(photo, side, config, input, reference)
     result = replace(measured, request=request, seconds=round(time.perf_counter() - start, 3)).to_dict()
     write_outputs(Path(out_dir), result, files)
     return result
@@ -398,17 +403,40 @@ class _Files:
     extra_masks: tuple[tuple[str, np.ndarray], ...] = ()  # (file name, mask) of the other feet in the photo
 
 
-def run_pipeline(photo: Photo, side: str, config: MeasureConfig, input: str = "auto") -> tuple[MeasureResult, _Files]:
+def run_pipeline(
+    photo: Photo, side: str, config: MeasureConfig, input: str = "auto", reference: str = "auto"
+) -> tuple[MeasureResult, _Files]:
     """Everything after loading: the typed result (``MeasureResult``) and the arrays of the files to write.
 
     Each foot found is measured (two when both are in view, ``locate_feet``); the result's own keys are the foot
-    asked for with ``side``, else the one measured best, and ``feet`` lists every foot.
+    asked for with ``side``, else the one measured best, and ``feet`` lists every foot. ``reference``: the kind
+    of reference object looked for (``auto``: every kind).
     """
     with fixed_threads(PIPELINE_THREADS):  # the same millimetres on any machine (footmesh.threads)
-        return _run_stages(photo, side, config, input)
+        return _run_stages(photo, side, config, input, reference)
 
 
-def _run_stages(photo: Photo, side: str, config: MeasureConfig, input: str) -> tuple[MeasureResult, _Files]:
+def _assumed_sheet_note(reference: ReferenceObject, searched_any: bool) -> str:
+    """What a sheet whose proportions were not seen (cut by the photo's edge, or a corner hidden) was taken for,
+    and how to say otherwise (``searched_any``: every kind was looked for, not the one the user named)."""
+    described = references.kind(reference.kind).described
+    if reference.beyond_edge:
+        seen = f"the photo's edge cuts off one side of {described}: its far corners were placed"
+    else:
+        seen = f"a corner of {described} is hidden: it was completed"
+    note = (
+        f"{seen} from its known size and its other sides (scale known to {100 * reference.scale_rel_sd:.1f} %, if it "
+        "is one: a sheet of another size looks the same and gives other millimetres)"
+    )
+    others = [k for k in references.with_detector("sheet") if k != reference.kind]
+    if searched_any and others:
+        note += "; if it is " + " or ".join(f"{references.kind(k).described}, say so: --reference {k}" for k in others)
+    return note + ("; for the best figures photograph all of it" if reference.beyond_edge else "")
+
+
+def _run_stages(
+    photo: Photo, side: str, config: MeasureConfig, input: str, reference_kind: str
+) -> tuple[MeasureResult, _Files]:
     from footmesh.cues.reference import search_reference
 
     timings = {}
@@ -431,8 +459,14 @@ def _run_stages(photo: Photo, side: str, config: MeasureConfig, input: str) -> t
     if kind == "rgb":
         exclude = cv2.dilate(feet_mask.astype(np.uint8), np.ones((15, 15), np.uint8)) > 0
         focal_prior = config.focal_prior_log_sd[photo.intrinsics.source]
+        kinds = references.NAMES if reference_kind == "auto" else (reference_kind,)
         searched = search_reference(
-            rgb, K, exclude_mask=exclude, focal_prior_log_sd=focal_prior, distance_prior=config.camera_distance_prior_mm
+            rgb,
+            K,
+            kinds,
+            exclude_mask=exclude,
+            focal_prior_log_sd=focal_prior,
+            distance_prior=config.camera_distance_prior_mm,
         )
         reference = searched.found
         if reference is None and searched.rejected is not None:
@@ -441,13 +475,8 @@ def _run_stages(photo: Photo, side: str, config: MeasureConfig, input: str) -> t
                 f"the reference: {searched.rejected}; lay the sheet flat, all of it in view, its sides clear of "
                 "clothing and shadows"
             )
-        if reference is not None and reference.beyond_edge:
-            notes.append(
-                f"the photo's edge cuts off one side of {references.kind(reference.kind).described}: its far corners "
-                f"were placed from its known size and its other sides (scale known to "
-                f"{100 * reference.scale_rel_sd:.1f} %, if it is one: a sheet of another size, cut, looks the same and "
-                "gives other millimetres); for the best figures photograph all of it"
-            )
+        if reference is not None and reference.kind_assumed:
+            notes.append(_assumed_sheet_note(reference, reference_kind == "auto"))
         if reference is not None and config.clear_paper and references.kind(reference.kind).detector == "sheet":
             sheet_px = reference.corners_px
             feet = [_off_the_paper(foot, rgb, sheet_px) for foot in feet]

@@ -86,7 +86,7 @@ KINDS: tuple[ReferenceKind, ...] = (
         (85.60, 53.98),  # ISO/IEC 7810 ID-1
         size_tolerance_mm=0.125,  # ISO/IEC 7810: 85.47-85.72 mm
         detector="card",
-        preference=2,
+        preference=3,
         min_coverage=(0.6, 0.8),
         dataset_id=2,
         look="card",
@@ -105,6 +105,18 @@ KINDS: tuple[ReferenceKind, ...] = (
         look="marker",
         synth_share=0.2,
         margin_mm=20.0,
+    ),
+    ReferenceKind(
+        "letter",
+        "a US letter sheet",
+        (279.4, 215.9),  # 11 x 8.5 in (ANSI/ASME Y14.1 size A)
+        size_tolerance_mm=2.0,  # no tolerance in the standard: A4's, as paper is cut on the same machines
+        detector="sheet",
+        preference=2,  # after A4: a sheet whose proportions are not seen whole is taken to be A4
+        min_coverage=(0.1, 0.4),
+        dataset_id=4,
+        look="paper",
+        synth_share=0.0,  # the mixed datasets (and the networks trained on them) were made before it
     ),
 )
 """Every kind, in dataset order (the synthetic datasets' random draws follow this order)."""

@@ -100,6 +100,14 @@ def _to_builtin(value: Any) -> Any:
     raise TypeError(f"cannot write {type(value).__name__} to JSON")
 
 
-def request_options(side: str, depth_unit: str, input: str, embedded_depth: bool = True) -> dict[str, str | bool]:
+def request_options(
+    side: str, depth_unit: str, input: str, embedded_depth: bool = True, reference: str = "auto"
+) -> dict[str, str | bool]:
     """The options of a measurement that change its result besides the input files (``result["request"]``)."""
-    return {"side": side, "depth_unit": depth_unit, "input": input, "embedded_depth": embedded_depth}
+    return {
+        "side": side,
+        "depth_unit": depth_unit,
+        "input": input,
+        "embedded_depth": embedded_depth,
+        "reference": reference,
+    }

@@ -28,7 +28,7 @@ class FootEntry:
     primary: bool | None = _doc("whether the result's own keys describe this foot", default=None)
     side: str | None = _doc("left or right", default=None)
     side_source: str | None = _doc("how the side was chosen", default=None)
-    scale_source: str | None = _doc("depth, a4, card, marker or none", default=None)
+    scale_source: str | None = _doc("depth, a4, card, marker, letter or none", default=None)
     scaled: bool | None = _doc("whether millimetres are real", default=None)
     measurements: dict[str, Any] | None = _doc("{name: {value_mm, uncertainty_mm}}", default=None)
     sizes: dict[str, Any] | None = _doc("{system: {value, label, exact} or null}", default=None)
@@ -56,7 +56,7 @@ class MeasureResult:
     side: str = _doc("left or right")
     side_losses: dict[str, float] = _doc("the fit cost of each side tried")
     side_source: str = _doc("how the side was chosen: given, pair, fit, decoder or cues")
-    scale_source: str = _doc("depth, a4, card, marker, or none (then every millimetre value is null)")
+    scale_source: str = _doc("depth, a4, card, marker, letter, or none (then every millimetre value is null)")
     scaled: bool = _doc("whether millimetres are real")
     reference: dict[str, Any] | None = _doc("the reference object found: kind, corners_px, size_mm, scale_rel_sd")
     measurements: dict[str, dict[str, float | None]] = _doc("{name: {value_mm, uncertainty_mm}}, the eight")
@@ -73,7 +73,9 @@ class MeasureResult:
     units: str = _doc("mm, or unscaled")
     files: dict[str, str] = _doc("{key: file name} of the result's files")
     feet: tuple[FootEntry, ...] | None = _doc("each foot, only with two feet in view", default=None)
-    request: dict[str, str | bool] | None = _doc("the options asked for: side, depth_unit, input", default=None)
+    request: dict[str, str | bool] | None = _doc(
+        "the options asked for: side, depth_unit, input, embedded_depth, reference", default=None
+    )
     seconds: float | None = _doc("time in all", default=None)
     version: str = _doc("the footmesh version that measured", default="")
     format: str = _doc(f"{RESULT_FORMAT}", default=RESULT_FORMAT)

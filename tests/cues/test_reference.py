@@ -13,6 +13,7 @@ import pytest
 from footmesh import references
 from footmesh.cues.reference import SIZES_MM, ReferenceObject, detect_reference, search_reference
 from footmesh.cues.reference import quads as quad_tests
+from footmesh.cues.reference.finish import _named_sheet
 from footmesh.synth.render import Renderer
 from footmesh.synth.scene import REFERENCE_KINDS, SynthConfig, guided_view_config, view_config
 
@@ -352,9 +353,40 @@ def test_metric_shape_names_the_object():
     assert obj.object_distance_mm == pytest.approx(np.linalg.norm([10.0, -5.0, 700.0]), rel=0.005)
     rgb, K, _ = _drawn_rectangle(*SIZES_MM["card"], tilt_deg=20.0)
     assert detect_reference(rgb, K).kind == "card"
-    for length, width in ((280.0, 210.0), (300.0, 150.0), (200.0, 200.0)):
+    rgb, K, _ = _drawn_rectangle(*SIZES_MM["letter"])
+    assert detect_reference(rgb, K).kind == "letter"
+    for length, width in ((250.0, 210.0), (300.0, 150.0), (200.0, 200.0)):
         rgb, K, _ = _drawn_rectangle(length, width)
         assert detect_reference(rgb, K) is None, (length, width)
+
+
+def test_a_sheet_is_named_by_its_side_ratio_and_the_preferred_one_where_the_photo_cannot_rule_it_out():
+    """A4 (1.414) and letter (1.294) are told apart by the measured side ratio; where A4 lies within 3 SD of it
+    but outside its tolerance, the sheet is neither, and the reason says so."""
+    both = ["a4", "letter"]
+    assert _named_sheet(1.294, 0.005, 0.045, both) == ("letter", None)
+    assert _named_sheet(1.0 / 1.294, 0.005, 0.045, both) == ("letter", None)  # seen the other way up
+    assert _named_sheet(1.414, 0.005, 0.045, both) == ("a4", None)
+    assert _named_sheet(1.36, 0.02, 0.045, both) == ("a4", None)  # within A4's tolerance: as before letter
+    assert _named_sheet(1.33, 0.005, 0.045, both) == ("letter", None)
+    kind, why = _named_sheet(1.33, 0.025, 0.045, both)
+    assert kind is None and "lies between an A4 sheet's 1.414 and a US letter sheet's 1.294" in why
+    assert _named_sheet(1.36, 0.02, 0.045, ["letter"]) == (None, None)  # letter alone: too far from it
+
+
+def test_a_letter_sheet_with_a_hidden_corner_is_taken_as_a4_unless_letter_is_named():
+    """A front view (seed 4242, 18) of a foot on a letter sheet, its far side under the foot, its focal length
+    known as EXIF's is: the three sides left cannot show its proportions, so searched for any kind it is completed
+    as the preferred sheet, A4, and says so (``kind_assumed``); named by the user, it is completed as letter, at
+    the true distance."""
+    sample = Renderer(view_config("front", size=640, reference="letter")).render(4242, 18)
+    exclude = cv2.dilate(_foot_and_leg(sample).astype(np.uint8), np.ones((15, 15), np.uint8)) > 0
+    _, centre = _truth_distances(sample)
+    anything = detect_reference(sample["rgb"], sample["K"], exclude_mask=exclude, focal_prior_log_sd=0.1)
+    assert anything.kind == "a4" and anything.kind_assumed
+    named = detect_reference(sample["rgb"], sample["K"], ("letter",), exclude, focal_prior_log_sd=0.1)
+    assert named.kind == "letter" and named.kind_assumed
+    assert named.object_distance_mm == pytest.approx(centre, rel=MAX_DISTANCE_REL)
 
 
 def test_one_quad_shape_tests_agree_with_the_vectorised_ones():

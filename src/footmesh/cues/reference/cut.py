@@ -164,6 +164,7 @@ def finish_cut(
         K=np.array(K, dtype=np.float64),
         focal_log_sd=focal_prior_log_sd,
         beyond_edge=True,
+        kind_assumed=True,
     )
     return float(supports.mean() + coverage.mean()) - 10.0 * fit_sd, obj
 

@@ -27,9 +27,11 @@ from footmesh.cues.reference.params import (
     MIN_SIDE_SUPPORT,
     RECTANGLES,
     SHAPE_WEIGHT,
+    SHEET_KIND_SDS,
     SHEETS,
     SIZE_REL_SD,
     SIZES_MM,
+    assumed_sheet,
 )
 from footmesh.cues.reference.pose import _distance, _shape_sd, placed
 from footmesh.cues.reference.quads import _classify, _corner_points_many, _inside, _parallelogram, _signed_area
@@ -75,6 +77,7 @@ def _finish(
     """
     # the first pass of the sides' refinement is also what the completion starts from: fitted once for both
     first = _fit_sides(quad, blurred, valid, first_radius)
+    why: list[str] = []
     result = _finish_quad(
         quad,
         kinds,
@@ -85,18 +88,22 @@ def _finish(
         first=first,
         completed=completed,
         first_radius=first_radius,
-        rejected=rejected,
+        rejected=why,
         focal_prior_log_sd=focal_prior_log_sd,
     )
-    for sheet_kind in [k for k in SHEETS if k in kinds] if result is None else []:
-        for sheet in _complete_sheet(quad, blurred, K, valid, lines=first, size_mm=SIZES_MM[sheet_kind]):
-            # the quad's own reason stands: a completion is a guess
-            # completed with K's focal length: a completion's perspective says nothing of its own, so that focal
-            # length stays as uncertain as the caller's
-            result = _finish_quad(sheet, [sheet_kind], blurred, K, valid, completed=True)
-            if result is not None:
-                return result[0], replace(result[1], focal_log_sd=focal_prior_log_sd)
-    return result
+    if rejected is not None:
+        rejected.extend(why)  # the quad's own reason stands: a completion is a guess
+    sheet_kind = assumed_sheet(kinds)  # three sides do not show the sheet's proportions
+    # a sheet seen whole whose side ratio lies between two sheets' is not completed as one of them
+    if result is not None or sheet_kind is None or any(isinstance(w, _Undecided) for w in why):
+        return result
+    for sheet in _complete_sheet(quad, blurred, K, valid, lines=first, size_mm=SIZES_MM[sheet_kind]):
+        # completed with K's focal length: a completion's perspective says nothing of its own, so that focal
+        # length stays as uncertain as the caller's
+        result = _finish_quad(sheet, [sheet_kind], blurred, K, valid, completed=True)
+        if result is not None:
+            return result[0], replace(result[1], focal_log_sd=focal_prior_log_sd)
+    return None
 
 
 def _finish_quad(
@@ -113,8 +120,9 @@ def _finish_quad(
     focal_prior_log_sd: float = 0.0,
 ) -> tuple[float, ReferenceObject] | None:
     """``_finish`` without the completion of a sheet (``first``: the sides fitted at ``first_radius``;
-    ``completed``: the quad is a sheet completed across a hidden corner; ``rejected``: why the quad is not the
-    object, appended in words when it is not; ``focal_prior_log_sd``: see ``_finish``)."""
+    ``completed``: the quad is a sheet completed across a hidden corner, whose kind is ``assumed_sheet``'s;
+    ``rejected``: why the quad is not the object, appended in words when it is not; ``focal_prior_log_sd``: see
+    ``_finish``)."""
 
     def reject(why: str) -> None:
         if rejected is not None:
@@ -166,6 +174,14 @@ def _finish_quad(
     else:
         # named among every rectangle kind, so that a sheet asked for as a card is not one
         found = _classify(corners, K, RECTANGLES, tol_ratio=tol_ratio, tol_angle=tol_angle)
+        if found is not None and found[0] in SHEETS:
+            # a completion was drawn with its sheet's proportions: they tell nothing of its kind
+            sheets = [assumed_sheet(kinds)] if completed else kinds
+            focal_sd = _focal_ratio_sd(corners, K, focal_log_sd)
+            named, undecided = _named_sheet(shape[0], math.hypot(ratio_sd, focal_sd), tol_ratio, sheets)
+            if undecided is not None:
+                return reject(undecided)
+            found = None if named is None else (named, found[1])
         if found is None or found[0] not in kinds:
             ratio, angle = max(shape[0], 1.0 / shape[0]), shape[1]
             aspects = ", ".join(f"{references.kind(k).described} {references.kind(k).aspect:.3f}" for k in RECTANGLES)
@@ -234,6 +250,7 @@ def _finish_quad(
     ]
     obj = ReferenceObject(
         kind=kind,
+        kind_assumed=completed,
         corners_px=corners,
         size_mm=(length, width),
         cam_from_floor=pose,
@@ -254,3 +271,40 @@ def _finish_quad(
     score = float(supports.mean() + coverage.mean()) - SHAPE_WEIGHT * shape_misfit - 10.0 * fit_sd
     score += 1e-6 * abs(_signed_area(corners))
     return score, obj
+
+
+class _Undecided(str):
+    """Why a sheet is not taken: its side ratio lies between two sheets' (``_named_sheet``)."""
+
+
+def _named_sheet(
+    ratio: float, ratio_sd: float, tol_ratio: float, kinds: list[str]
+) -> tuple[str | None, _Undecided | None]:
+    """Which sheet among ``kinds`` a rectangle of measured side ratio ``ratio`` (either way up; the SD of its log
+    ``ratio_sd``) is: (the most preferred one within ``tol_ratio`` (log) of it, None), unless a more preferred one
+    lies within ``SHEET_KIND_SDS`` SDs, which the photo cannot then rule out: (None, why it is neither, in words).
+    (None, None) where no sheet among ``kinds`` is within ``tol_ratio``."""
+    log_ratio = abs(math.log(ratio))
+    misfit = {k: abs(log_ratio - math.log(references.kind(k).aspect)) for k in SHEETS if k in kinds}
+    within = [k for k in misfit if misfit[k] <= tol_ratio]
+    if not within:
+        return None, None
+    possible = [k for k in misfit if misfit[k] <= max(tol_ratio, SHEET_KIND_SDS * ratio_sd)]
+    if possible[0] == within[0]:
+        return within[0], None
+    aspects = " and ".join(f"{references.kind(k).described}'s {references.kind(k).aspect:.3f}" for k in possible)
+    return None, _Undecided(
+        f"its side ratio, {math.exp(log_ratio):.3f} (SD {100 * ratio_sd:.1f} %), lies between {aspects}; the photo's "
+        "focal length may be wrong"
+    )
+
+
+def _focal_ratio_sd(corners: np.ndarray, K: np.ndarray, focal_log_sd: float) -> float:
+    """The SD of the log side ratio of the rectangle with these (4, 2) px corners that K's focal length, known to
+    ``focal_log_sd`` (log), gives it."""
+    if focal_log_sd <= 0:
+        return 0.0
+    here, there = _parallelogram(corners, K), _parallelogram(corners, focal.with_focal_scale(K, math.exp(focal_log_sd)))
+    if here is None or there is None:
+        return float("inf")
+    return abs(math.log(there[0] / here[0]))

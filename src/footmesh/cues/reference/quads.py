@@ -36,6 +36,7 @@ from footmesh.cues.reference.params import (
     SIZES_MM,
     WHITE_MIN_GAIN,
     WHITE_SHARE,
+    assumed_sheet,
 )
 from footmesh.geometry.camera import pixel_rays, rescale_pixels
 
@@ -184,14 +185,19 @@ def _candidate_groups(
     rough, source = _polygon_quads(polygons)
     big = np.array([polygons[i][3] and polygons[i][1] >= SHEET_MIN_AREA * h * w for i in source])
     # a sheet's region cut by the photo's edge: its quads have a side along that edge (tried last of all)
-    sizes = [SIZES_MM[k] for k in SHEETS if k in kinds] if regions == "sheet" else []
+    assumed = assumed_sheet(kinds)  # completed and cut sheets do not show their proportions
+    sizes = [SIZES_MM[assumed]] if regions == "sheet" and assumed is not None else []
     cut = [quad for size in sizes for quad in _cut_many(rough[big], K, h, w, size)]
     keep = _inside_many(rough, h, w)
     rough, source, big = _canonical_many(rough[keep]), source[keep], big[keep]
     keep = np.isfinite(rough).all(axis=(1, 2))
     rough, source, big = rough[keep], source[keep], big[keep]
-    passed = _classify_many(rough, K, RECTANGLES, 2 * LOOSE_FACTOR)
-    focal_kinds = [k for k in RECTANGLES if k in FOCAL_KINDS]
+    # a card's regions (small, many on a tiled floor) are tried as the one sheet a sheet is taken to be, not as
+    # every sheet: each sheet's proportions let more tile cells in, and some then pass as cards (letter's let
+    # in tile cells taken for cards in 3 of the 80 photos of ../shared/real/rafiansyah that gave none before)
+    shapes = RECTANGLES if regions == "sheet" else [k for k in RECTANGLES if k not in SHEETS or k == assumed]
+    passed = _classify_many(rough, K, shapes, 2 * LOOSE_FACTOR)
+    focal_kinds = [k for k in shapes if k in FOCAL_KINDS]
     if free_focal:
         passed |= _classify_many(rough, K, focal_kinds, 2 * LOOSE_FACTOR, free_focal=True)
     quads: list[np.ndarray] = []
@@ -204,7 +210,7 @@ def _candidate_groups(
             quad = _fit_sides_to_points(shape_ok[i], polygons[src[i]][2].reshape(-1, 2).astype(np.float64))
             if quad is None or not _inside(quad, h, w) or (quad := _canonical(quad)) is None:
                 continue
-            held = _classify(quad, K, kinds, loose=LOOSE_FACTOR) is None
+            held = _classify(quad, K, [k for k in kinds if k in shapes], loose=LOOSE_FACTOR) is None
             if held and (not free_focal or _classify(quad, _free_focal_K(quad, K), focal_kinds, LOOSE_FACTOR) is None):
                 continue
             key = tuple(np.round(quad / 2.0).astype(int).ravel().tolist())

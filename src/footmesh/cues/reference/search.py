@@ -14,7 +14,15 @@ from footmesh.cues.reference.cut import finish_cut
 from footmesh.cues.reference.finish import _finish
 from footmesh.cues.reference.marker import _detect_marker, _overlaps
 from footmesh.cues.reference.objects import ReferenceObject, ReferenceSearch
-from footmesh.cues.reference.params import _KERNEL5, BLUR_SIGMA_PX, KINDS, MARKER_SHEET_SCALE, RECTANGLES, SHEETS
+from footmesh.cues.reference.params import (
+    _KERNEL5,
+    BLUR_SIGMA_PX,
+    KINDS,
+    MARKER_SHEET_SCALE,
+    RECTANGLES,
+    SHEETS,
+    assumed_sheet,
+)
 from footmesh.cues.reference.pose import seen_with
 from footmesh.cues.reference.quads import (
     _candidate_groups,
@@ -201,12 +209,8 @@ def _try_groups(
             if any(_overlaps(quad, sheet) for sheet in sheets):
                 continue
             why: list[str] = []
-            if cut:
-                result = None
-                for kind in [k for k in SHEETS if k in wanted]:
-                    result = finish_cut(quad, kind, blurred, K, valid, focal_prior_log_sd, why, masked)
-                    if result is not None:
-                        break
+            if cut:  # three sides do not show the sheet's proportions
+                result = finish_cut(quad, assumed_sheet(wanted), blurred, K, valid, focal_prior_log_sd, why, masked)
             else:
                 result = _finish(
                     quad,
