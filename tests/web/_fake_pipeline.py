@@ -52,6 +52,7 @@ def fake_measure(
     depth_unit: str = "mm",
     intrinsics: Path | None = None,
     side: str = "auto",
+    reference: str = "auto",
     delay_s: float = 0.0,
     scale_source: str = "a4",
 ) -> dict:

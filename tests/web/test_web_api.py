@@ -180,6 +180,22 @@ def test_photo_without_a_foot(make_client, blank_photo, demo_photo):
     assert post_photo(client, demo_photo).status_code == 200  # still serving
 
 
+def test_the_reference_object_named_reaches_the_measurement_and_an_unknown_one_is_refused(make_client, demo_photo):
+    asked = {}
+
+    def measure(image, out_dir, **options):
+        asked.update(options)
+        return fake_measure(image, out_dir, **options)
+
+    client = make_client(measure=measure)
+    assert post_photo(client, demo_photo, reference="letter").status_code == 200
+    assert asked["reference"] == "letter"
+    unknown = post_photo(client, demo_photo, reference="legal")
+    assert unknown.status_code == 422 and unknown.json()["detail"].startswith("reference: Input should be")
+    page = client.get("/").text
+    assert '<option value="letter">a US letter sheet</option>' in page
+
+
 def test_bad_fields_and_side_files(make_client, demo_photo):
     client = make_client()
     photo = ("foot.jpg", demo_photo, "image/jpeg")

@@ -34,7 +34,7 @@ from fastapi.templating import Jinja2Templates
 from starlette.concurrency import run_in_threadpool
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
-from footmesh import __version__
+from footmesh import __version__, references
 from footmesh.formats import accepted
 from footmesh.measure import MEASUREMENT_NAMES
 from footmesh.model.skeleton import JOINT_NAMES, PARENTS
@@ -49,6 +49,8 @@ log = logging.getLogger(__name__)
 HERE = Path(__file__).parent
 STATIC_DIR = HERE / "static"
 TEMPLATE_DIR = HERE / "templates"
+REFERENCE_CHOICES = ("auto", *references.NAMES)
+"""The form's ``reference``: the reference object in the photo (``footmesh measure --reference``)."""
 MEASURE_PATH = "/api/measure"
 SWEEP_INTERVAL_S = 60.0
 RETRY_AFTER_S = 10
@@ -91,7 +93,8 @@ class _State:
 
 
 def create_app(measure: MeasureFn | None = None, settings: WebSettings | None = None) -> FastAPI:
-    """The web app; ``measure(image, out_dir, *, depth, depth_unit, intrinsics, side) -> dict`` does the work.
+    """The web app; ``measure(image, out_dir, *, depth, depth_unit, intrinsics, side, reference) -> dict`` does the
+    work.
 
     Args:
         measure: the measuring function (default ``footmesh.pipeline.measure_photo``, imported per request). In
@@ -152,6 +155,7 @@ def create_app(measure: MeasureFn | None = None, settings: WebSettings | None = 
             "time_limit_s": settings.time_limit_s,
             "viewer_config": json.dumps({"parents": PARENTS, "joints": JOINT_NAMES}),
             "measurement_names": MEASUREMENT_NAMES,
+            "references": [(k.name, k.described) for k in references.KINDS],
         }
         response = templates.TemplateResponse(request, "index.html", context)
         response.headers["Content-Security-Policy"] = PAGE_CSP
@@ -187,11 +191,16 @@ def create_app(measure: MeasureFn | None = None, settings: WebSettings | None = 
         depth_unit: Annotated[Literal["mm", "m"], Form(description="unit of a float .npy depth map")] = "mm",
         intrinsics: Annotated[UploadFile | None, File(description="optional camera intrinsics (JSON)")] = None,
         side: Annotated[Literal["auto", "left", "right"], Form(description="which foot")] = "auto",
+        reference: Annotated[
+            Literal[REFERENCE_CHOICES], Form(description="the reference object in the photo (auto: any)")
+        ] = "auto",
     ) -> Response:
         web: _State = request.app.state.web
         work = Path(tempfile.mkdtemp(prefix="request-", dir=web.upload_root))
         try:
-            job = await run_in_threadpool(_prepare_job, work, web.settings, photo, depth, depth_unit, intrinsics, side)
+            job = await run_in_threadpool(
+                _prepare_job, work, web.settings, photo, depth, depth_unit, intrinsics, side, reference
+            )
         except BaseException as exc:
             shutil.rmtree(work, ignore_errors=True)
             if isinstance(exc, uploads.UploadError):
@@ -263,6 +272,7 @@ def _prepare_job(
     depth_unit: str,
     intrinsics: UploadFile | None,
     side: str,
+    reference: str,
 ) -> Job:
     """Copy the uploads into ``work`` under our own names and check each by content (runs in a thread)."""
     limit = settings.max_upload_bytes
@@ -285,6 +295,7 @@ def _prepare_job(
         depth_unit=depth_unit,
         intrinsics=intrinsics_file.path if intrinsics_file else None,
         side=side,
+        reference=reference,
     )
 
 

@@ -32,7 +32,8 @@ from footmesh.web.store import ResultStore
 log = logging.getLogger(__name__)
 
 MeasureFn = Callable[..., dict]
-"""``measure(image, out_dir, *, depth, depth_unit, intrinsics, side) -> result dict`` (footmesh.pipeline)."""
+"""``measure(image, out_dir, *, depth, depth_unit, intrinsics, side, reference) -> result dict``
+(footmesh.pipeline)."""
 PIPELINE_MODULE = "footmesh.pipeline"
 WARM_MODULE = "footmesh.web.warm"
 """Imports the pipeline and loads its foot model and networks: the forkserver's preload for the real pipeline."""
@@ -55,6 +56,7 @@ class Job:
     depth_unit: str = "mm"
     intrinsics: Path | None = None
     side: str = "auto"
+    reference: str = "auto"
 
     @property
     def out_dir(self) -> Path:
@@ -113,7 +115,13 @@ def default_measure(image: Path, out_dir: Path, **options: Any) -> dict:
 
 def _call(measure: MeasureFn, job: Job) -> dict:
     job.out_dir.mkdir(parents=True, exist_ok=True)
-    options = {"depth": job.depth, "depth_unit": job.depth_unit, "intrinsics": job.intrinsics, "side": job.side}
+    options = {
+        "depth": job.depth,
+        "depth_unit": job.depth_unit,
+        "intrinsics": job.intrinsics,
+        "side": job.side,
+        "reference": job.reference,
+    }
     result = measure(job.image, job.out_dir, **options)
     if not isinstance(result, dict):
         raise InternalError(f"the measure function returned {type(result).__name__}, not a result dict")
