@@ -730,6 +730,7 @@ def test_a_real_photo_whose_edge_cuts_the_sheet_is_measured_and_says_so(tmp_path
     assert cut and "a sheet of another size" in cut[0]  # what three sides cannot tell, said
     assert "if it is a US letter sheet, say so: --reference letter" in cut[0]
     assert min(y for _, y in result["reference"]["corners_px"]) < 0  # the far corners lie above the photo
+    assert result["reference"]["kind_assumed"]
     assert low <= result["measurements"]["stick_length"]["value_mm"] <= high
     # named a letter sheet, it is completed as one: other millimetres, and nothing more to say about its kind
     letter = measure_photo(crop, tmp_path / "letter", intrinsics=crop.with_suffix(".K.json"), reference="letter")

@@ -1098,6 +1098,7 @@ def _reference_dict(reference, to_photo: float) -> dict:
         "corners_px": rescale_pixels(np.asarray(reference.corners_px), to_photo).round(2).tolist(),
         "size_mm": list(reference.size_mm),
         "scale_rel_sd": float(reference.scale_rel_sd),
+        "kind_assumed": bool(reference.kind_assumed),
     }
 
 

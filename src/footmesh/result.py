@@ -58,7 +58,10 @@ class MeasureResult:
     side_source: str = _doc("how the side was chosen: given, pair, fit, decoder or cues")
     scale_source: str = _doc("depth, a4, card, marker, letter, or none (then every millimetre value is null)")
     scaled: bool = _doc("whether millimetres are real")
-    reference: dict[str, Any] | None = _doc("the reference object found: kind, corners_px, size_mm, scale_rel_sd")
+    reference: dict[str, Any] | None = _doc(
+        "the reference object found: kind, corners_px, size_mm, scale_rel_sd, kind_assumed (a sheet whose proportions "
+        "were not seen, taken to be the sheet searched first)"
+    )
     measurements: dict[str, dict[str, float | None]] = _doc("{name: {value_mm, uncertainty_mm}}, the eight")
     ratios: dict[str, float] = _doc("scale-free ratios, given even when unscaled")
     sizes: dict[str, Any] = _doc("{system: {value, label, exact} or null}; null values when unscaled")

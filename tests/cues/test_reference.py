@@ -377,15 +377,15 @@ def test_a_sheet_is_named_by_its_side_ratio_and_the_preferred_one_where_the_phot
 def test_a_letter_sheet_with_a_hidden_corner_is_taken_as_a4_unless_letter_is_named():
     """A front view (seed 4242, 18) of a foot on a letter sheet, its far side under the foot, its focal length
     known as EXIF's is: the three sides left cannot show its proportions, so searched for any kind it is completed
-    as the preferred sheet, A4, and says so (``kind_assumed``); named by the user, it is completed as letter, at
-    the true distance."""
+    as the preferred sheet, A4, and says so (``kind_assumed``); named by the user, it is found as letter, at the
+    true distance."""
     sample = Renderer(view_config("front", size=640, reference="letter")).render(4242, 18)
     exclude = cv2.dilate(_foot_and_leg(sample).astype(np.uint8), np.ones((15, 15), np.uint8)) > 0
     _, centre = _truth_distances(sample)
     anything = detect_reference(sample["rgb"], sample["K"], exclude_mask=exclude, focal_prior_log_sd=0.1)
     assert anything.kind == "a4" and anything.kind_assumed
     named = detect_reference(sample["rgb"], sample["K"], ("letter",), exclude, focal_prior_log_sd=0.1)
-    assert named.kind == "letter" and named.kind_assumed
+    assert named.kind == "letter"
     assert named.object_distance_mm == pytest.approx(centre, rel=MAX_DISTANCE_REL)
 
 

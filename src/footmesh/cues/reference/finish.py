@@ -77,7 +77,6 @@ def _finish(
     """
     # the first pass of the sides' refinement is also what the completion starts from: fitted once for both
     first = _fit_sides(quad, blurred, valid, first_radius)
-    why: list[str] = []
     result = _finish_quad(
         quad,
         kinds,
@@ -88,16 +87,14 @@ def _finish(
         first=first,
         completed=completed,
         first_radius=first_radius,
-        rejected=why,
+        rejected=rejected,
         focal_prior_log_sd=focal_prior_log_sd,
     )
-    if rejected is not None:
-        rejected.extend(why)  # the quad's own reason stands: a completion is a guess
     sheet_kind = assumed_sheet(kinds)  # three sides do not show the sheet's proportions
-    # a sheet seen whole whose side ratio lies between two sheets' is not completed as one of them
-    if result is not None or sheet_kind is None or any(isinstance(w, _Undecided) for w in why):
+    if result is not None or sheet_kind is None:
         return result
     for sheet in _complete_sheet(quad, blurred, K, valid, lines=first, size_mm=SIZES_MM[sheet_kind]):
+        # the quad's own reason stands: a completion is a guess
         # completed with K's focal length: a completion's perspective says nothing of its own, so that focal
         # length stays as uncertain as the caller's
         result = _finish_quad(sheet, [sheet_kind], blurred, K, valid, completed=True)
@@ -273,13 +270,7 @@ def _finish_quad(
     return score, obj
 
 
-class _Undecided(str):
-    """Why a sheet is not taken: its side ratio lies between two sheets' (``_named_sheet``)."""
-
-
-def _named_sheet(
-    ratio: float, ratio_sd: float, tol_ratio: float, kinds: list[str]
-) -> tuple[str | None, _Undecided | None]:
+def _named_sheet(ratio: float, ratio_sd: float, tol_ratio: float, kinds: list[str]) -> tuple[str | None, str | None]:
     """Which sheet among ``kinds`` a rectangle of measured side ratio ``ratio`` (either way up; the SD of its log
     ``ratio_sd``) is: (the most preferred one within ``tol_ratio`` (log) of it, None), unless a more preferred one
     lies within ``SHEET_KIND_SDS`` SDs, which the photo cannot then rule out: (None, why it is neither, in words).
@@ -293,7 +284,7 @@ def _named_sheet(
     if possible[0] == within[0]:
         return within[0], None
     aspects = " and ".join(f"{references.kind(k).described}'s {references.kind(k).aspect:.3f}" for k in possible)
-    return None, _Undecided(
+    return None, (
         f"its side ratio, {math.exp(log_ratio):.3f} (SD {100 * ratio_sd:.1f} %), lies between {aspects}; the photo's "
         "focal length may be wrong"
     )

@@ -18,6 +18,7 @@ const SCALE_SOURCES = {
   a4: 'the A4 sheet',
   card: 'the bank card',
   marker: 'the printed marker',
+  letter: 'the US letter sheet',
   declared: 'the declared camera distance',
   none: 'none: no scale reference was found, so there are no millimetre figures and no sizes',
 };
