@@ -297,6 +297,31 @@ def test_a_shadow_on_a_sheet_is_blank_but_a_sparse_pattern_is_not():
     assert MAX_INSIDE_BLOBS < 10 and not _blank_inside(quad, lines, valid, blurred)
 
 
+def test_the_pieces_of_a_foot_around_its_mask_are_one_blob():
+    """A close-up's mask covers only the foot's middle: the instep above it and the toes below it show as
+    separate pieces, which with a shadow made a sheet "not blank inside" (a real crop of ``arshoe_barefeet_3``);
+    pieces touching the mask are one object with it. A pattern away from the mask still counts blob by blob."""
+    from footmesh.cues.reference.sides import _blank_inside, _fit_sides
+
+    image = np.full((200, 260, 3), 0.4, np.float32)
+    quad = np.array([[40.0, 40.0], [40.0, 160.0], [220.0, 160.0], [220.0, 40.0]])
+    cv2.fillPoly(image, [quad.astype(np.int32)], (0.9, 0.9, 0.9))
+    skin = (0.75, 0.55, 0.45)
+    cv2.rectangle(image, (95, 50), (135, 100), skin, -1)  # the instep
+    for x in (92, 108, 124, 140):  # four toes
+        cv2.circle(image, (x, 118), 6, skin, -1)
+    cv2.circle(image, (190, 140), 15, (0.6, 0.6, 0.6), -1)  # a shadow
+    valid = np.ones(image.shape[:2], bool)
+    lines = _fit_sides(quad, cv2.GaussianBlur(image, (0, 0), 0.75), valid, 3.0)
+    valid[95:112, 80:150] = False  # the mask: a band across the foot, between the instep and the toes
+    blurred = cv2.GaussianBlur(image, (0, 0), 0.75)
+    assert _blank_inside(quad, lines, valid, blurred)
+    apart = valid.copy()
+    apart[95:112, 80:150] = True
+    apart[60:75, 150:170] = False  # the same mask moved off the foot: the instep, four toes and the shadow
+    assert not _blank_inside(quad, lines, apart, blurred)
+
+
 def test_only_the_kinds_asked_for():
     """A card is never reported as a sheet (nor a sheet as a card); asking for it alone still finds it."""
     card = _scenes("card", 1)[0]

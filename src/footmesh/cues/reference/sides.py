@@ -83,8 +83,14 @@ def _blank_inside(quad: np.ndarray, lines: list[_Line], valid: np.ndarray, blurr
     near = np.linalg.norm(blurred[y0:y1, x0:x1] - paper, axis=2) < 0.5 * change
     if float(near[shown].mean()) < MIN_BLANK_SHARE:
         return False
-    _, _, stats, _ = cv2.connectedComponentsWithStats((shown & ~near).astype(np.uint8), connectivity=8)
-    blobs = int(np.sum(stats[1:, cv2.CC_STAT_AREA] >= MIN_BLOB_SHARE * shown.sum()))
+    stained = shown & ~near
+    # the pieces of a foot that the mask covers only in part (toes, the instep beside it) are one object: the
+    # blobs are counted with the masked part joining those that touch it (within the blur's reach of it)
+    masked = cv2.dilate(((inside > 0) & ~valid[y0:y1, x0:x1]).astype(np.uint8), _KERNEL5) > 0
+    joined = stained | masked
+    count, labels = cv2.connectedComponents(joined.astype(np.uint8), connectivity=8)
+    blob_areas = np.bincount(labels[stained], minlength=count)[1:]
+    blobs = int(np.sum(blob_areas >= MIN_BLOB_SHARE * shown.sum()))
     return blobs <= MAX_INSIDE_BLOBS
 
 
@@ -512,8 +518,9 @@ def _paper_floor_lines(
 ) -> tuple[list[_Line | None], np.ndarray]:
     """Each side's line (None kept None) fitted again along the whole side through the edges between the paper and
     the floor only (``_stretch_line``; the paper's colour from all the sides, as the leg covering one side gives it
-    the skin's as its own); a side that shows too little of that edge keeps its line. And (4,) the fraction of
-    each side that shows that edge (0 where too little, or no line)."""
+    the skin's as its own, and where that shows too little, the side's own, where it is paper's); a side that shows
+    too little of that edge keeps its line. And (4,) the fraction of each side that shows that edge (0 where too
+    little, or no line)."""
     inner, _ = _inner_outer(corners, lines)
     paper = np.median(inner, axis=0)
     centre = corners.mean(axis=0)
@@ -525,14 +532,17 @@ def _paper_floor_lines(
             continue
         p, q = corners[i], corners[(i + 1) % 4]
         t = q - p
-        if (centre - p) @ np.array([-t[1], t[0]]) > 0:  # the paper lies on the +n (far) side
-            ln = dataclasses.replace(ln, far=paper)
-        else:
-            ln = dataclasses.replace(ln, near=paper)
+        paper_far = (centre - p) @ np.array([-t[1], t[0]]) > 0  # the paper lies on the +n (far) side
+        own, beyond = (ln.far, ln.near) if paper_far else (ln.near, ln.far)
         length = float(np.linalg.norm(q - p))
         along = np.arange(END_SKIP * length + 1.0, (1.0 - END_SKIP) * length - 1.0 + 1e-9, 1.0)
-        line = _stretch_line(blurred, p, q, along, ln) if len(along) >= 6 else None
-        clean.append(ln if line is None else line)
+        # the light falls off across a sheet: the paper inside the sides of one real sheet, cropped close, read
+        # 0.67, 0.80 and 0.93, and the side beside the brightest showed none of its edge with the median
+        models = [dataclasses.replace(ln, **{"far" if paper_far else "near": c}) for c in (paper, own)]
+        line = _stretch_line(blurred, p, q, along, models[0]) if len(along) >= 6 else None
+        if line is None and len(along) >= 6 and _paper_colour(own, beyond):
+            line = _stretch_line(blurred, p, q, along, models[1])
+        clean.append(models[0] if line is None else line)
         shown[i] = 0.0 if line is None else line.coverage
     return clean, shown
 
@@ -623,6 +633,12 @@ def _inner_outer(quad: np.ndarray, lines: list[_Line | None]) -> tuple[np.ndarra
         inner.append(ln.far if far_inside else ln.near)
         outer.append(ln.near if far_inside else ln.far)
     return np.array(inner), np.array(outer)
+
+
+def _paper_colour(colour: np.ndarray, beyond: np.ndarray) -> bool:
+    """Whether a side's (3,) inside colour is white paper's: little colour, brighter than ``beyond`` it."""
+    saturation = (colour.max() - colour.min()) / max(float(colour.max()), 1e-6)
+    return saturation <= PAPER_MAX_SATURATION and float(colour.mean()) > float(beyond.mean()) + MIN_CONTRAST / 2
 
 
 def _is_paper(quad: np.ndarray, lines: list[_Line | None]) -> bool:
