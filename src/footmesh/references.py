@@ -110,7 +110,7 @@ KINDS: tuple[ReferenceKind, ...] = (
         "letter",
         "a US letter sheet",
         (279.4, 215.9),  # 11 x 8.5 in (ANSI/ASME Y14.1 size A)
-        size_tolerance_mm=2.0,  # no tolerance in the standard: A4's, as paper is cut on the same machines
+        size_tolerance_mm=2.0,  # taken as A4's (no tolerance for it was looked up)
         detector="sheet",
         preference=2,  # after A4: a sheet whose proportions are not seen whole is taken to be A4
         min_coverage=(0.1, 0.4),
