@@ -21,6 +21,12 @@ def test_the_registry_is_consistent():
     with pytest.raises(ValueError, match="one of a4, card, marker, letter"):
         references.kind("legal")
     assert references.kind("card").size_rel_sd == pytest.approx(0.125 / 85.60 / np.sqrt(3))
+    assert [k.named for k in references.KINDS] == [
+        "the A4 sheet",
+        "the bank card",
+        "the printed marker",
+        "the US letter sheet",
+    ]
 
 
 @pytest.mark.parametrize("name", references.NAMES)

@@ -53,6 +53,11 @@ class ReferenceKind:
     single tile cells of patterned floors passed as cards (7 of the 80 photos of ``../shared/real/rafiansyah``)."""
 
     @property
+    def named(self) -> str:
+        """In messages, once found: "the A4 sheet" (``described`` with the definite article)."""
+        return "the " + self.described.split(" ", 1)[1]
+
+    @property
     def aspect(self) -> float:
         """Length over width."""
         return self.size_mm[0] / self.size_mm[1]

@@ -194,6 +194,7 @@ def test_the_reference_object_named_reaches_the_measurement_and_an_unknown_one_i
     assert unknown.status_code == 422 and unknown.json()["detail"].startswith("reference: Input should be")
     page = client.get("/").text
     assert '<option value="letter">a US letter sheet</option>' in page
+    assert "&#34;letter&#34;: &#34;the US letter sheet&#34;" in page  # for the result's "Scale from ..."
 
 
 def test_bad_fields_and_side_files(make_client, demo_photo):

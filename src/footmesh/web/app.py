@@ -156,6 +156,7 @@ def create_app(measure: MeasureFn | None = None, settings: WebSettings | None = 
             "viewer_config": json.dumps({"parents": PARENTS, "joints": JOINT_NAMES}),
             "measurement_names": MEASUREMENT_NAMES,
             "references": [(k.name, k.described) for k in references.KINDS],
+            "scale_sources": json.dumps({k.name: k.named for k in references.KINDS}),
         }
         response = templates.TemplateResponse(request, "index.html", context)
         response.headers["Content-Security-Policy"] = PAGE_CSP

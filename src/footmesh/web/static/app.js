@@ -15,10 +15,8 @@ const LABELS = {
 };
 const SCALE_SOURCES = {
   depth: 'the depth map',
-  a4: 'the A4 sheet',
-  card: 'the bank card',
-  marker: 'the printed marker',
-  letter: 'the US letter sheet',
+  // the reference objects' names come from footmesh.references, through the page
+  ...JSON.parse(document.body.dataset.scaleSources || '{}'),
   declared: 'the declared camera distance',
   none: 'none: no scale reference was found, so there are no millimetre figures and no sizes',
 };
