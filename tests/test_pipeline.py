@@ -119,6 +119,7 @@ def test_summary_table_lists_unscaled_and_failed_photos():
 
 # --- whole photos (the shipped networks) ----------------------------------------------------------------------
 
+REAL_A4 = Path(__file__).resolve().parents[1] / ".." / "shared" / "real" / "a4" / "photos"
 LENGTH_TOLERANCE_MM = {"a4_left": 10.0, "depth_right": 15.0, "card_right": 15.0}
 """Per bundled photo, the measured length must lie within this of the truth and within 2.5 of its own
 uncertainties: a regression guard (today: -1.1, -1.9, -4.7 mm); the accuracy itself is measured by
@@ -712,6 +713,24 @@ def test_a_real_foot_whose_leg_lies_across_the_photo_is_read_turned_not_refused_
         measure_photo(photo, tmp_path / "upright", config=MeasureConfig(floor_up_turn_deg=None, turned_looks=()))
 
 
+@pytest.mark.parametrize("name", ["arshoe_barefeet_3.jpg", "arshoe_barefeet_4.jpg"])
+def test_a_real_foot_filling_the_photo_is_found_whole_not_in_its_toes(name):
+    """A real photo (``../shared/real/a4``, evaluation only) cropped 25 % at the top, so that the foot fills the
+    picture: the first look at the whole photo finds two toes and took them for two feet; the look at the photo
+    shrunk into a wider view (``MeasureConfig.wider_look_window``) finds the one forefoot."""
+    from footmesh.pipeline import locate_feet
+
+    rgb = cv2.cvtColor(cv2.imread(str(REAL_A4 / name)), cv2.COLOR_BGR2RGB)
+    crop = np.ascontiguousarray(rgb[rgb.shape[0] // 4 :])
+    side = MeasureConfig().rgb_working_max_side
+    scale = side / max(crop.shape[:2])
+    crop = cv2.resize(crop, (round(crop.shape[1] * scale), round(crop.shape[0] * scale)), interpolation=cv2.INTER_AREA)
+    feet = locate_feet(crop, None, None, "rgb", MeasureConfig())
+    assert len(feet) == 1 and feet[0].mask.mean() > 0.1
+    toes = locate_feet(crop, None, None, "rgb", MeasureConfig(wider_look_window=None))
+    assert len(toes) == 2  # two toes: "two feet"
+
+
 def test_a_real_photo_whose_edge_cuts_the_sheet_is_measured_and_says_so(tmp_path):
     """A real photo cropped so that the sheet's far end leaves the picture (``eval.real_reference.score_cropped``:
     the whole sheet's focal length, the principal point kept, in a K.json): millimetres from the sheet's three
@@ -946,3 +965,34 @@ def test_a_foot_a_turned_look_puts_past_the_edge_is_taken_upright_where_it_is_in
     np.testing.assert_allclose(kept[0].cues.joints2d_px, upright)
     past[17] = upright[17]  # a turned look that keeps the heel in view is kept
     assert pipeline.turned_where_needed(first, photo, None, camera, "rgb", config)[0].quarter_turns == 2
+
+
+@pytest.mark.parametrize("size_ratio, taken", [(0.25, False), (0.9, True)])
+def test_a_cut_off_foot_is_not_swapped_for_a_toe_a_turned_look_finds_in_view(monkeypatch, size_ratio, taken):
+    """Upright, the foot runs past the photo's edge; turned, the networks find a foot in view. It is that foot
+    seen the way they learnt where it is about as large; a foot a quarter the size is one of the toes of a foot
+    cut by the edge (close crops of real photos were measured so), and the cut-off foot is kept, to be refused."""
+    from footmesh import pipeline
+    from footmesh.geometry.camera import Camera
+
+    height, width = 60, 80
+    photo = np.zeros((height, width, 3), np.uint8)
+    mask = np.zeros((height, width), bool)
+    mask[0:55, 30:50] = True
+    seen = mask.copy()  # the turned look's silhouette: off the edge
+    seen[:5] = False
+    cut = np.tile(np.array([[40.0, 45.0]], np.float32), (18, 1))  # the ankle above the toe tips, the heel past the top
+    cut[16], cut[17] = [40.0, 25.0], [40.0, -5.0]
+    in_view = (np.array([40.0, 30.0]) + size_ratio * (cut - [40.0, 20.0])).astype(np.float32)
+    assert pipeline.refusals.cut_off(mask, cut, width, height, MeasureConfig()) is not None
+    assert pipeline.refusals.cut_off(seen, in_view, width, height, MeasureConfig()) is None
+
+    def located(joints, silhouette):
+        cues = Cues(silhouette.astype(np.float32), joints, np.ones(18, np.float32), "rgb")
+        return Located(CropBox(0, 0, 80), cues, silhouette)
+
+    monkeypatch.setattr(pipeline, "locate_feet", lambda *args: [located(in_view, seen)])
+    monkeypatch.setattr(pipeline, "_turned_back_located", lambda foot, turns, w, h: replace(foot, quarter_turns=turns))
+    camera = Camera(np.array([[100.0, 0, 39.5], [0, 100.0, 29.5], [0, 0, 1]]), width, height)
+    kept = pipeline.turned_where_needed([located(cut, mask)], photo, None, camera, "rgb", MeasureConfig())
+    assert len(kept) == 1 and (kept[0].quarter_turns != 0) == taken

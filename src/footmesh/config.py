@@ -258,6 +258,20 @@ class MeasureConfig:
     first_look_zoom: int = 2
     """Where no look at the whole photo finds a foot region, a last look runs the network at this many times its
     own image side (a small, far foot: at 128 px a foot 60 px long in a 640-px photo is 12 px)."""
+    wider_look_window: float | None = 1.6
+    """Where the first look at the whole photo finds a foot region, the network also looks at the photo shrunk
+    into a square this many times its longer side (its edges carried on outwards), and its regions are taken
+    where they are larger and the closer look places the joints more confidently (the two settings below). A
+    foot filling the photo, larger than the feet the networks saw whole photos with, was found by its toes
+    alone: close crops of ``../shared/real/a4`` (the sheet and the foot cut 25 or 45 % in from one side) were
+    measured as a foot in one or two toes, or as two feet (two toes; ``docs/measure.md``). None: no wider look."""
+    wider_look_min_area_ratio: float = 1.5
+    """...its largest region at least this many times the first look's largest (on the renders of
+    ``footmesh eval measure``, guided and front, at most 1.58; on the seven real A4 photos 0.86-1.65; on
+    the close crops 2-9)..."""
+    wider_look_min_confidence_gain: float = 0.05
+    """...and the closer look at that region places the joints with a mean confidence at least this much above
+    the first look's largest region's (close crops: 0.14-0.34 more; the seven real photos within 0.03)."""
     same_foot_joints: float = 0.2
     """Two located feet whose joints lie closer than this fraction of the foot's image size S (median over the
     joints; ``cues.trim``) are one foot found twice."""
@@ -276,6 +290,10 @@ class MeasureConfig:
     in the photo is measured: the networks learnt feet with the leg rising up the image, and a photo taken straight
     down (whose phone cannot tell which way is up) or held sideways shows them the leg across it, the heel under
     the shin read as past the edge (``pipeline.turned_where_needed``). Empty: never turned."""
+    turned_min_size_ratio: float = 0.5
+    """...where that look's foot is at least this large (its joints' image size, ``cues.trim.foot_axes``) against
+    the cut-off one: a foot truly cut by the edge was found whole in one or two of its toes when turned (crops of
+    ``../shared/real/a4``: 0.25-0.27, and measured as a foot there; the same foot turned into view: 0.81-1.23)."""
     floor_up_min_tilt_deg: float = 10.0
     """Where a reference object or the depth shows the floor, its up seen at the foot tells which way up the photo
     was taken, unless the line of sight to the foot lies within this of straight down (the training renders'

@@ -112,11 +112,14 @@ def whole_photo_cues(
     depth: np.ndarray | None,
     weights: str | os.PathLike | None = None,
     image_size: int | None = None,
+    window: float = 1.0,
 ) -> Cues:
     """The first pass: cues of the whole photo (H, W, 3) and/or depth (H, W) mm padded to a square, in its pixels
-    (the shipped ``kind`` network, or the one in ``weights``, at ``image_size``: see ``predict_cues``)."""
+    (the shipped ``kind`` network, or the one in ``weights``, at ``image_size``: see ``predict_cues``).
+    ``window``: the square's side over the photo's longer side (above 1: the photo shrunk inside a wider view,
+    its edges carried on outwards)."""
     h, w = (rgb if rgb is not None else depth).shape[:2]
-    side = max(h, w)
+    side = int(round(max(h, w) * window))
     whole = CropBox((w - side) // 2, (h - side) // 2, side)
     first = predict_cues(
         kind,
@@ -153,6 +156,8 @@ def locate_feet(
             break
     else:
         raise refusal
+    if zoom == 1 and config.wider_look_window is not None:
+        stats, areas = _wider_where_better(look, rgb, depth, K, kind, config, stats, areas)
     order = np.argsort(areas)[::-1]
     regions = [1 + order[0]]
     if len(order) > 1 and areas[order[1]] >= config.second_foot_ratio * areas[order[0]]:
@@ -183,13 +188,35 @@ def _first_looks(kind: str, with_rgb: bool, zoom: int) -> list[tuple[str, int]]:
 
 
 def _first_pass_regions(
-    kind: str, rgb: np.ndarray | None, depth: np.ndarray | None, zoom: int = 1
+    kind: str, rgb: np.ndarray | None, depth: np.ndarray | None, zoom: int = 1, window: float = 1.0
 ) -> tuple[np.ndarray, np.ndarray]:
-    """The foot regions of the whole photo as the ``kind`` network sees it at ``zoom`` times its own image side:
-    their ``cv2.connectedComponentsWithStats`` rows (N + 1, 5), the background first, and their areas (N,) px."""
-    cues = whole_photo_cues(kind, rgb, depth, image_size=cues_network(kind)[1].image_size * zoom)
+    """The foot regions of the whole photo as the ``kind`` network sees it at ``zoom`` times its own image side
+    (``window``: see ``whole_photo_cues``): their ``cv2.connectedComponentsWithStats`` rows (N + 1, 5), the
+    background first, and their areas (N,) px."""
+    cues = whole_photo_cues(kind, rgb, depth, image_size=cues_network(kind)[1].image_size * zoom, window=window)
     n, _, stats = _components(cues.silhouette >= 0.5)
     return stats, stats[1:, cv2.CC_STAT_AREA] if n > 1 else np.zeros(0)
+
+
+def _wider_where_better(
+    look: str, rgb, depth, K, kind: str, config: MeasureConfig, stats: np.ndarray, areas: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """The regions (``_first_pass_regions``' pair) of a look at the photo shrunk into a wider view
+    (``MeasureConfig.wider_look_window``) where its largest region is ``wider_look_min_area_ratio`` times the
+    first look's and the closer look at it places the joints more confidently (``wider_look_min_confidence_gain``);
+    else the first look's ``stats`` and ``areas``. A foot filling the photo, larger than the feet the networks saw
+    whole photos with, was found by its toes alone (two toes taken for two feet) and measured as a tiny foot."""
+    wide_stats, wide_areas = _first_pass_regions(look, rgb, depth, window=config.wider_look_window)
+    if not wide_areas.size or wide_areas.max() < config.wider_look_min_area_ratio * areas.max():
+        return stats, areas
+    wide = _located_in(rgb, depth, K, kind, config, wide_stats[1 + np.argmax(wide_areas), :4])
+    if wide is None:
+        return stats, areas
+    first = _located_in(rgb, depth, K, kind, config, stats[1 + np.argmax(areas), :4])
+    gain = config.wider_look_min_confidence_gain
+    if first is None or wide.cues.joint_confidence.mean() >= first.cues.joint_confidence.mean() + gain:
+        return wide_stats, wide_areas
+    return stats, areas
 
 
 def _located_in(rgb, depth, K, kind: str, config: MeasureConfig, box: np.ndarray) -> Located | None:
@@ -608,11 +635,21 @@ def turned_where_needed(
             # a foot from a turned look may have been in view upright: that look is tried too
             for quarter_turns in (k for k in (0, *config.turned_looks) if k != foot.quarter_turns):
                 again = _overlapping(foot, turned_feet(quarter_turns))
-                if again is not None and refusals.cut_off(again.mask, again.cues.joints2d_px, w, h, config) is None:
+                if (
+                    again is not None
+                    and refusals.cut_off(again.mask, again.cues.joints2d_px, w, h, config) is None
+                    and _size_ratio(again, foot) >= config.turned_min_size_ratio
+                ):
                     foot = again
                     break
         looks.append(foot)
     return list({id(foot): foot for foot in looks}.values())
+
+
+def _size_ratio(located: Located, other: Located) -> float:
+    """How large ``located``'s foot is against ``other``'s (their joints' image sizes); 0 where either cannot tell."""
+    a, b = foot_axes(located.cues.joints2d_px), foot_axes(other.cues.joints2d_px)
+    return 0.0 if a is None or b is None else a.size / b.size
 
 
 def _overlapping(located: Located, others: tuple[Located, ...]) -> Located | None:
