@@ -156,15 +156,16 @@ def locate_feet(
             break
     else:
         raise refusal
+    seen: dict[int, Located | None] = {}  # second passes already run, by region
     if zoom == 1 and config.wider_look_window is not None:
-        stats, areas = _wider_where_better(look, rgb, depth, K, kind, config, stats, areas)
+        stats, areas, seen = _wider_where_better(look, rgb, depth, K, kind, config, stats, areas)
     order = np.argsort(areas)[::-1]
     regions = [1 + order[0]]
     if len(order) > 1 and areas[order[1]] >= config.second_foot_ratio * areas[order[0]]:
         regions.append(1 + order[1])
     feet = []
     for region in regions:
-        located = _located_in(rgb, depth, K, kind, config, stats[region, :4])
+        located = seen[region] if region in seen else _located_in(rgb, depth, K, kind, config, stats[region, :4])
         # the second region's crop may show the first foot again (its joints, and so its silhouette, on it)
         if located is not None and not any(
             _same_foot(located.cues, foot.cues, config.same_foot_joints) for foot in feet
@@ -200,23 +201,25 @@ def _first_pass_regions(
 
 def _wider_where_better(
     look: str, rgb, depth, K, kind: str, config: MeasureConfig, stats: np.ndarray, areas: np.ndarray
-) -> tuple[np.ndarray, np.ndarray]:
+) -> tuple[np.ndarray, np.ndarray, dict[int, Located | None]]:
     """The regions (``_first_pass_regions``' pair) of a look at the photo shrunk into a wider view
     (``MeasureConfig.wider_look_window``) where its largest region is ``wider_look_min_area_ratio`` times the
     first look's and the closer look at it places the joints more confidently (``wider_look_min_confidence_gain``);
-    else the first look's ``stats`` and ``areas``. A foot filling the photo, larger than the feet the networks saw
-    whole photos with, was found by its toes alone (two toes taken for two feet) and measured as a tiny foot."""
+    else the first look's ``stats`` and ``areas``; and the second passes it ran on the regions kept, by region.
+    A foot filling the photo, larger than the feet the networks saw whole photos with, was found by its toes
+    alone (two toes taken for two feet) and measured as a tiny foot."""
     wide_stats, wide_areas = _first_pass_regions(look, rgb, depth, window=config.wider_look_window)
     if not wide_areas.size or wide_areas.max() < config.wider_look_min_area_ratio * areas.max():
-        return stats, areas
-    wide = _located_in(rgb, depth, K, kind, config, wide_stats[1 + np.argmax(wide_areas), :4])
+        return stats, areas, {}
+    wide_region, first_region = 1 + int(np.argmax(wide_areas)), 1 + int(np.argmax(areas))
+    wide = _located_in(rgb, depth, K, kind, config, wide_stats[wide_region, :4])
     if wide is None:
-        return stats, areas
-    first = _located_in(rgb, depth, K, kind, config, stats[1 + np.argmax(areas), :4])
+        return stats, areas, {}
+    first = _located_in(rgb, depth, K, kind, config, stats[first_region, :4])
     gain = config.wider_look_min_confidence_gain
     if first is None or wide.cues.joint_confidence.mean() >= first.cues.joint_confidence.mean() + gain:
-        return wide_stats, wide_areas
-    return stats, areas
+        return wide_stats, wide_areas, {wide_region: wide}
+    return stats, areas, {first_region: first}
 
 
 def _located_in(rgb, depth, K, kind: str, config: MeasureConfig, box: np.ndarray) -> Located | None:
