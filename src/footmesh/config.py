@@ -267,8 +267,8 @@ class MeasureConfig:
     measured as a foot in one or two toes, or as two feet (two toes; ``docs/measure.md``). None: no wider look."""
     wider_look_min_area_ratio: float = 1.5
     """...its largest region at least this many times the first look's largest (on the renders of
-    ``footmesh eval measure``, guided and front, at most 1.58; on the seven real A4 photos 0.86-1.65; on
-    the close crops 2-9)..."""
+    ``footmesh eval measure``, guided and front, at most 1.58, ood up to 3.41; on the seven real A4 photos
+    0.86-1.65; on the close crops 2-9)..."""
     wider_look_min_confidence_gain: float = 0.05
     """...and the closer look at that region places the joints with a mean confidence at least this much above
     the first look's largest region's (close crops: 0.14-0.34 more; the seven real photos within 0.03)."""
