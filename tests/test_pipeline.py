@@ -702,7 +702,7 @@ def test_a_real_foot_whose_leg_lies_across_the_photo_is_read_turned_not_refused_
     the side: upright, the network reads the heel under the shin as past the photo's edge (refused as cut off);
     the sheet's floor says the photo was taken sideways, and turned the foot on the sheet is measured within the
     adult range. Without the floor's say, the cut-off refusal's own turned looks keep it measured too."""
-    photo = Path(__file__).resolve().parents[1] / ".." / "shared" / "real" / "a4" / "photos" / "arshoe_barefeet1.jpg"
+    photo = REAL_A4 / "arshoe_barefeet1.jpg"
     low, high = MeasureConfig().plausible_length_mm
     for config in (MeasureConfig(), MeasureConfig(floor_up_turn_deg=None)):
         result = measure_photo(photo, tmp_path / str(config.floor_up_turn_deg), config=config)
