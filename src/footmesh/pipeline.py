@@ -650,9 +650,12 @@ def turned_where_needed(
 
 
 def _size_ratio(located: Located, other: Located) -> float:
-    """How large ``located``'s foot is against ``other``'s (their joints' image sizes); 0 where either cannot tell."""
+    """How large ``located``'s foot is against ``other``'s (their joints' image sizes); 0 where ``located``'s
+    joints lie too close together to tell, infinite where only ``other``'s do."""
     a, b = foot_axes(located.cues.joints2d_px), foot_axes(other.cues.joints2d_px)
-    return 0.0 if a is None or b is None else a.size / b.size
+    if a is None:
+        return 0.0
+    return math.inf if b is None else a.size / b.size
 
 
 def _overlapping(located: Located, others: tuple[Located, ...]) -> Located | None:
