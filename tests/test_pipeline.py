@@ -731,6 +731,54 @@ def test_a_real_foot_filling_the_photo_is_found_whole_not_in_its_toes(name):
     assert len(toes) == 2  # two toes: "two feet"
 
 
+RAFIANSYAH = Path(__file__).resolve().parents[1] / ".." / "shared" / "real" / "rafiansyah"
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize(
+    "name",
+    [
+        "49_65cm_26-May-2023-09_16_02.jpg",  # standing touching: found as one region over both
+        "86_61cm_27-May-2023-08_27_16.jpg",  # the same, touching along the whole foot
+        "90_61cm_17-May-2023-12_08_18.jpg",  # apart, one before the other: both fitted as left feet
+    ],
+)
+def test_each_of_two_real_feet_is_measured_on_its_own_foot_as_its_own_side(tmp_path, name):
+    """Real photos (``../shared/real/rafiansyah``, evaluation only, feet drawn by hand) of both feet, taken looking
+    down at them: each measured foot lies on the hand-drawn foot of the side it was given (far more of its mask on
+    that foot than on the other). Two feet standing
+    touching were found as one foot between them; two apart, where they stand not telling their sides, were both
+    fitted as left feet."""
+    from footmesh.eval.real import MASK_VALUE
+
+    truth = cv2.imread(str(RAFIANSYAH / "masks" / Path(name).with_suffix(".png")), cv2.IMREAD_GRAYSCALE)
+    result = measure_photo(RAFIANSYAH / "photos" / name, tmp_path)
+    assert len(result["feet"]) == 2 and all(foot["measured"] for foot in result["feet"])
+    for foot in result["feet"]:
+        mask = cv2.imread(str(tmp_path / foot["files"]["mask_png"]), cv2.IMREAD_GRAYSCALE) > 0
+        assert mask.shape == truth.shape
+        other = "left" if foot["side"] == "right" else "right"
+        assert (mask & (truth == MASK_VALUE[foot["side"]])).sum() > 3 * (mask & (truth == MASK_VALUE[other])).sum()
+    assert sorted(foot["side"] for foot in result["feet"]) == ["left", "right"]
+
+
+def test_two_real_feet_standing_touching_are_one_region_whose_halves_are_a_left_and_a_right_foot():
+    """The first look at a real photo of both feet standing touching (``../shared/real/rafiansyah``) finds one
+    region over both; the halves of its box are taken for two feet where the left/right head is sure they are a
+    right and a left one (``MeasureConfig.two_feet_min_probability``), their silhouettes apart; at the photo's
+    size and at the pipeline's working size."""
+    from footmesh.pipeline import locate_feet
+
+    rgb = cv2.cvtColor(cv2.imread(str(RAFIANSYAH / "photos" / "86_61cm_27-May-2023-08_27_16.jpg")), cv2.COLOR_BGR2RGB)
+    upright = np.ascontiguousarray(rgb[::-1, ::-1])  # the legs rising up the picture, as the networks learnt
+    working = MeasureConfig().rgb_working_max_side / max(rgb.shape[:2])
+    for photo in (upright, cv2.resize(upright, None, fx=working, fy=working, interpolation=cv2.INTER_AREA)):
+        feet = locate_feet(photo, None, None, "rgb", MeasureConfig())
+        assert len(feet) == 2 and not (feet[0].mask & feet[1].mask).any()
+        assert sorted(round(foot.cues.right_probability) for foot in feet) == [0, 1]
+    assert len(locate_feet(upright, None, None, "rgb", MeasureConfig(two_feet_min_probability=None))) == 1
+
+
 def test_a_real_photo_whose_edge_cuts_the_sheet_is_measured_and_says_so(tmp_path):
     """A real photo cropped so that the sheet's far end leaves the picture (``eval.real_reference.score_cropped``:
     the whole sheet's focal length, the principal point kept, in a K.json): millimetres from the sheet's three

@@ -272,6 +272,17 @@ class MeasureConfig:
     wider_look_min_confidence_gain: float = 0.05
     """...and the closer look at that region places the joints with a mean confidence at least this much above
     the first look's largest region's (close crops: 0.14-0.34 more; the seven real photos within 0.03)."""
+    two_feet_min_probability: float | None = 0.8
+    """Where the photo shows one foot region, the halves of its box (across its width, and across its height) are
+    shown to the networks too, and the feet found in them replace the region's where the left/right head takes
+    them for a right and a left foot with at least this probability (the product of its two answers) and their
+    joints lie apart (``two_feet_max_overlap``): two feet standing touching, photographed looking down at them,
+    were found as one foot straddling both, its side a coin toss (``../shared/real/rafiansyah``: the whole
+    region's p(right) 0.49-0.54 on three such photos, its halves' 0.92-1.0 and 0.01-0.04). The halves of one
+    foot show the same foot, of one side. None: no such look."""
+    two_feet_max_overlap: float = 0.2
+    """...the convex hulls of the two halves' joints overlapping on at most this fraction of the smaller one (each
+    half's silhouette takes in both feet where they touch: its pixels go to the foot whose joints lie nearer)."""
     same_foot_joints: float = 0.2
     """Two located feet whose joints lie closer than this fraction of the foot's image size S (median over the
     joints; ``cues.trim``) are one foot found twice."""

@@ -27,7 +27,7 @@ from footmesh import __version__, references, refusals, report, viz
 from footmesh.config import MeasureConfig
 from footmesh.cues import Cues
 from footmesh.cues.floor import depth_floor
-from footmesh.cues.predict import average_cues, predict_cues, turned, turned_back
+from footmesh.cues.predict import average_cues, predict_cues, right_probabilities, turned, turned_back
 from footmesh.cues.refine import clear_paper, height_image, refine_silhouette
 from footmesh.cues.trim import foot_axes, trim_silhouette
 from footmesh.cues.weights import network_for as cues_network
@@ -163,7 +163,7 @@ def locate_feet(
     regions = [1 + order[0]]
     if len(order) > 1 and areas[order[1]] >= config.second_foot_ratio * areas[order[0]]:
         regions.append(1 + order[1])
-    feet = []
+    feet, boxes = [], []
     for region in regions:
         located = seen[region] if region in seen else _located_in(rgb, depth, K, kind, config, stats[region, :4])
         # the second region's crop may show the first foot again (its joints, and so its silhouette, on it)
@@ -171,9 +171,78 @@ def locate_feet(
             _same_foot(located.cues, foot.cues, config.same_foot_joints) for foot in feet
         ):
             feet.append(located)
+            boxes.append(stats[region, :4])
     if not feet:
         raise refusals.foot_vanished()
+    if len(feet) == 1:
+        return _two_feet_as_one(rgb, depth, K, kind, config, boxes[0]) or feet
     return feet
+
+
+def _two_feet_as_one(rgb, depth, K, kind: str, config: MeasureConfig, box: np.ndarray) -> list[Located] | None:
+    """The two feet (largest first) of the halves of one region's box (x, y, w, h px), split across its width or
+    its height, where the left/right head takes them surely for a right and a left foot and their joints lie apart
+    (``MeasureConfig.two_feet_min_probability``, ``two_feet_max_overlap``; each pixel of both silhouettes given to
+    the nearer foot); else None: the region is one foot."""
+    sure = config.two_feet_min_probability
+    if sure is None:
+        return None
+    x, y, w, h = (int(v) for v in box)
+    splits = [
+        ((x, y, w // 2, h), (x + w // 2, y, w - w // 2, h)),
+        ((x, y, w, h // 2), (x, y + h // 2, w, h - h // 2)),
+    ]
+    crops = [crop_around(*half, config.crop_fill) for split in splits for half in split]
+    right = right_probabilities(
+        kind,
+        None if rgb is None else [crop.cut(rgb) for crop in crops],
+        None if depth is None else [crop.cut(depth, fill=0.0) for crop in crops],
+    )
+    if right is None:
+        return None
+    # the probability that a split's halves are a right and a left foot (either way round), surest first
+    pairs = [max(right[2 * i] * (1 - right[2 * i + 1]), right[2 * i + 1] * (1 - right[2 * i])) for i in range(2)]
+    for i in np.argsort(pairs)[::-1]:
+        if pairs[i] < sure:
+            continue
+        feet = [_located_in(rgb, depth, K, kind, config, np.array(half)) for half in splits[i]]
+        if feet[0] is None or feet[1] is None or _same_foot(feet[0].cues, feet[1].cues, config.same_foot_joints):
+            continue
+        hulls = [_joints_hull(foot.cues.joints2d_px, foot.mask.shape) for foot in feet]
+        if (hulls[0] & hulls[1]).sum() > config.two_feet_max_overlap * min(int(hull.sum()) for hull in hulls):
+            continue
+        feet = _apart(feet, hulls)
+        if any(foot is None for foot in feet):
+            continue
+        return sorted(feet, key=lambda foot: -int(foot.mask.sum()))
+    return None
+
+
+def _joints_hull(joints2d_px: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    """(H, W) bool: the convex hull of the joints (18, 2) px."""
+    hull = np.zeros(shape, np.uint8)
+    cv2.fillConvexPoly(hull, cv2.convexHull(np.round(joints2d_px).astype(np.int32)), 1)
+    return hull > 0
+
+
+def _apart(feet: list[Located], hulls: list[np.ndarray]) -> list[Located | None]:
+    """Two located feet whose silhouettes both take in the two (feet touching) with each pixel given to the foot
+    whose joints' hull (``hulls``: (H, W) bool each) lies nearer, each keeping the part its joints lie on; None
+    for one left without such a part."""
+    away = np.stack([cv2.distanceTransform((~hull).astype(np.uint8), cv2.DIST_L2, 3) for hull in hulls])
+    apart = []
+    for index, foot in enumerate(feet):
+        nearer = away[index] < away[1 - index] if index else away[index] <= away[1 - index]  # a tie to the first
+        mine = foot.mask & nearer
+        n, labels, _ = _components(mine)
+        keep = _part_of_the_joints(labels, n, foot.cues) if n > 1 else None
+        if keep is None:
+            apart.append(None)
+            continue
+        mask = labels == keep
+        silhouette = np.where(mask, foot.cues.silhouette, 0.0).astype(np.float32)
+        apart.append(replace(foot, cues=replace(foot.cues, silhouette=silhouette), mask=mask))
+    return apart
 
 
 def _first_looks(kind: str, with_rgb: bool, zoom: int) -> list[tuple[str, int]]:
@@ -530,29 +599,35 @@ def _run_stages(
         sides = [(s, "pair") for s in stood]
     else:
         sides = [("auto", "fit")] * len(feet)
-    outcomes: list[tuple[MeasureResult, _Files, Located, Any, np.ndarray] | Refusal] = []
-    for located, (foot_side, side_source) in zip(feet, sides, strict=True):
+
+    def outcome(located: Located, foot_side: str, side_source: str):
+        """The foot measured, or why it was refused."""
         try:
-            outcomes.append(
-                _measure_located(
-                    photo,
-                    located,
-                    foot_side,
-                    side_source,
-                    config,
-                    kind,
-                    rgb,
-                    depth,
-                    K,
-                    to_photo,
-                    reference,
-                    floor_seen,
-                    list(notes),
-                    dict(timings),
-                )
+            return _measure_located(
+                photo,
+                located,
+                foot_side,
+                side_source,
+                config,
+                kind,
+                rgb,
+                depth,
+                K,
+                to_photo,
+                reference,
+                floor_seen,
+                list(notes),
+                dict(timings),
             )
         except Refusal as exc:
-            outcomes.append(exc)
+            return exc
+
+    outcomes = [outcome(located, *told) for located, told in zip(feet, sides, strict=True)]
+    wrong = _less_surely_sided(outcomes) if len(outcomes) == 2 else None
+    if wrong is not None:
+        # two feet of one person are a left and a right one: the side told less surely is the other
+        refit = outcome(feet[wrong], "left" if outcomes[wrong][0].side == "right" else "right", "other")
+        outcomes[wrong] = refit if not isinstance(refit, Refusal) else outcomes[wrong]
     measured = [o for o in outcomes if not isinstance(o, Refusal)]
     if not measured:
         raise next(o for o in outcomes if isinstance(o, Refusal))
@@ -815,6 +890,33 @@ def pair_sides(joints_a: np.ndarray, joints_b: np.ndarray, config: MeasureConfig
     return ("left", "right") if across > 0 else ("right", "left")
 
 
+SIDE_SURENESS = {"given": 4, "pair": 3, "cues": 2, "decoder": 2, "fit": 1}
+"""How surely each ``side_source`` tells a foot's side, the surest highest (``_less_surely_sided``)."""
+
+
+def _less_surely_sided(outcomes: list) -> int | None:
+    """Of two measured feet fitted as the same side, the index of the one whose side was told less surely (by its
+    ``side_source``, ``SIDE_SURENESS``; between two fits, the one whose other side cost less against its own; between
+    two networks' or decoders' calls, the one nearer even), or None: the sides differ, a foot was refused, or
+    either side was given or read from where the two stand."""
+    if any(isinstance(o, Refusal) for o in outcomes):
+        return None
+    results, located = [o[0] for o in outcomes], [o[2] for o in outcomes]
+    if results[0].side != results[1].side or any(SIDE_SURENESS[r.side_source] > 2 for r in results):
+        return None
+
+    def sureness(index: int) -> tuple[int, float]:
+        result = results[index]
+        if result.side_source == "fit":
+            margin = result.side_losses["left" if result.side == "right" else "right"] / result.side_losses[result.side]
+        else:
+            right = located[index].cues.right_probability
+            margin = abs(right - 0.5) if result.side_source == "cues" and right is not None else math.inf
+        return SIDE_SURENESS[result.side_source], margin
+
+    return min((0, 1), key=sureness)
+
+
 def _both_feet(outcomes: list, reference, requested: str) -> tuple[MeasureResult, _Files]:
     """One result for a photo of two feet: the keys of the foot asked for (``requested`` side) or else of the
     best-measured one, ``feet`` listing both, both drawn on the overlay."""
@@ -862,6 +964,12 @@ def _both_feet(outcomes: list, reference, requested: str) -> tuple[MeasureResult
         f"two feet in view: {sides} foot measured; the result's own keys are the {result.side} foot "
         "(`feet` lists both; --side picks one)"
     )
+    turned_over = [foot for foot in feet if foot.measured and foot.side_source == "other"]
+    if turned_over:
+        result = result.with_message(
+            f"both feet were first fitted as {'left' if turned_over[0].side == 'right' else 'right'} feet; the one "
+            f"whose side was told less surely (foot {turned_over[0].index}) was fitted again as the other side"
+        )
     if len(fitted_sides) == 2 and fitted_sides[0] == fitted_sides[1]:
         result = result.with_message(
             f"both feet were fitted as {fitted_sides[0]} feet, so one of them is wrong; --side picks the one wanted"

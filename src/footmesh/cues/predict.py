@@ -134,6 +134,26 @@ def predict_cues(
     )
 
 
+def right_probabilities(
+    input_kind: str, rgbs: list[np.ndarray] | None = None, depths_mm: list[np.ndarray] | None = None
+) -> np.ndarray | None:
+    """The shipped ``input_kind`` network's probability that each image (H, W, 3) uint8 and/or depth map (H, W) mm
+    shows a right foot (N,), from one batch; None for a network without a left/right head."""
+    model, config = network_for(input_kind, None)
+    count = len(rgbs if rgbs is not None else depths_mm)
+    resized = [
+        resize_inputs(
+            None if rgbs is None or input_kind == "depth" else rgbs[i],
+            None if depths_mm is None or input_kind == "rgb" else depths_mm[i],
+            config.image_size,
+        )
+        for i in range(count)
+    ]
+    rgb_s = None if resized[0][0] is None else np.stack([r[0] for r in resized])
+    depth_s = None if resized[0][1] is None else np.stack([r[1] for r in resized])
+    return predict_batch(model, config, rgb_s, depth_s, mirror_average=input_kind in MIRROR_AVERAGED_INPUTS)[3]
+
+
 def average_cues(cues: list[Cues]) -> Cues:
     """One ``Cues`` from several networks' cues of the same image: silhouette probabilities averaged, each joint
     averaged with its confidences as weights, confidences and side probabilities averaged; ``input`` names them
