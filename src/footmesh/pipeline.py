@@ -600,34 +600,29 @@ def _run_stages(
     else:
         sides = [("auto", "fit")] * len(feet)
 
-    def outcome(located: Located, foot_side: str, side_source: str):
-        """The foot measured, or why it was refused."""
+    outcomes: list[tuple[MeasureResult, _Files, Located, Any, np.ndarray] | Refusal] = []
+    for located, (foot_side, side_source) in zip(feet, sides, strict=True):
         try:
-            return _measure_located(
-                photo,
-                located,
-                foot_side,
-                side_source,
-                config,
-                kind,
-                rgb,
-                depth,
-                K,
-                to_photo,
-                reference,
-                floor_seen,
-                list(notes),
-                dict(timings),
+            outcomes.append(
+                _measure_located(
+                    photo,
+                    located,
+                    foot_side,
+                    side_source,
+                    config,
+                    kind,
+                    rgb,
+                    depth,
+                    K,
+                    to_photo,
+                    reference,
+                    floor_seen,
+                    list(notes),
+                    dict(timings),
+                )
             )
         except Refusal as exc:
-            return exc
-
-    outcomes = [outcome(located, *told) for located, told in zip(feet, sides, strict=True)]
-    wrong = _less_surely_sided(outcomes) if len(outcomes) == 2 else None
-    if wrong is not None:
-        # two feet of one person are a left and a right one: the side told less surely is the other
-        refit = outcome(feet[wrong], "left" if outcomes[wrong][0].side == "right" else "right", "other")
-        outcomes[wrong] = refit if not isinstance(refit, Refusal) else outcomes[wrong]
+            outcomes.append(exc)
     measured = [o for o in outcomes if not isinstance(o, Refusal)]
     if not measured:
         raise next(o for o in outcomes if isinstance(o, Refusal))
@@ -890,33 +885,6 @@ def pair_sides(joints_a: np.ndarray, joints_b: np.ndarray, config: MeasureConfig
     return ("left", "right") if across > 0 else ("right", "left")
 
 
-SIDE_SURENESS = {"given": 4, "pair": 3, "cues": 2, "decoder": 2, "fit": 1}
-"""How surely each ``side_source`` tells a foot's side, the surest highest (``_less_surely_sided``)."""
-
-
-def _less_surely_sided(outcomes: list) -> int | None:
-    """Of two measured feet fitted as the same side, the index of the one whose side was told less surely (by its
-    ``side_source``, ``SIDE_SURENESS``; between two fits, the one whose other side cost less against its own; between
-    two networks' or decoders' calls, the one nearer even), or None: the sides differ, a foot was refused, or
-    either side was given or read from where the two stand."""
-    if any(isinstance(o, Refusal) for o in outcomes):
-        return None
-    results, located = [o[0] for o in outcomes], [o[2] for o in outcomes]
-    if results[0].side != results[1].side or any(SIDE_SURENESS[r.side_source] > 2 for r in results):
-        return None
-
-    def sureness(index: int) -> tuple[int, float]:
-        result = results[index]
-        if result.side_source == "fit":
-            margin = result.side_losses["left" if result.side == "right" else "right"] / result.side_losses[result.side]
-        else:
-            right = located[index].cues.right_probability
-            margin = abs(right - 0.5) if result.side_source == "cues" and right is not None else math.inf
-        return SIDE_SURENESS[result.side_source], margin
-
-    return min((0, 1), key=sureness)
-
-
 def _both_feet(outcomes: list, reference, requested: str) -> tuple[MeasureResult, _Files]:
     """One result for a photo of two feet: the keys of the foot asked for (``requested`` side) or else of the
     best-measured one, ``feet`` listing both, both drawn on the overlay."""
@@ -964,12 +932,6 @@ def _both_feet(outcomes: list, reference, requested: str) -> tuple[MeasureResult
         f"two feet in view: {sides} foot measured; the result's own keys are the {result.side} foot "
         "(`feet` lists both; --side picks one)"
     )
-    turned_over = [foot for foot in feet if foot.measured and foot.side_source == "other"]
-    if turned_over:
-        result = result.with_message(
-            f"both feet were first fitted as {'left' if turned_over[0].side == 'right' else 'right'} feet; the one "
-            f"whose side was told less surely (foot {turned_over[0].index}) was fitted again as the other side"
-        )
     if len(fitted_sides) == 2 and fitted_sides[0] == fitted_sides[1]:
         result = result.with_message(
             f"both feet were fitted as {fitted_sides[0]} feet, so one of them is wrong; --side picks the one wanted"

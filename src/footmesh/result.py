@@ -55,7 +55,7 @@ class MeasureResult:
     input: str = _doc("networks used: rgb, rgbd or depth")
     side: str = _doc("left or right")
     side_losses: dict[str, float] = _doc("the fit cost of each side tried")
-    side_source: str = _doc("how the side was chosen: given, pair, fit, decoder, cues or other")
+    side_source: str = _doc("how the side was chosen: given, pair, fit, decoder or cues")
     scale_source: str = _doc("depth, a4, card, marker, letter, or none (then every millimetre value is null)")
     scaled: bool = _doc("whether millimetres are real")
     reference: dict[str, Any] | None = _doc(
