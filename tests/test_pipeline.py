@@ -784,6 +784,33 @@ def test_two_real_feet_standing_touching_are_each_measured_on_their_own_foot_as_
     assert sorted(foot["side"] for foot in result["feet"]) == ["left", "right"]
 
 
+@pytest.mark.slow
+@pytest.mark.parametrize(
+    "name",
+    [
+        "91_73cm_17-May-2023-12_08_18.jpg",  # upright, the largest foot's leg angle 147 deg: under upside_down_deg
+        "91_74cm_17-May-2023-12_08_18.jpg",  # 159 deg, but the turned look finds no foot where the upright's lay
+    ],
+)
+def test_a_real_photo_whose_shin_upright_is_the_largest_foot_is_read_turned_where_the_feet_are_surer(tmp_path, name):
+    """Real photos (``../shared/real/rafiansyah``) looking down at one's own feet, one foot far, one near and cut
+    by the leg: upright, the networks took a shin for the largest foot (joint confidence 0.02-0.04) and measured
+    the near foot alone; turned 180 deg they place both feet's joints surely (0.47-0.55,
+    ``MeasureConfig.upside_down_min_confidence_gain``), and each measured foot lies on its hand-drawn foot."""
+    from footmesh.eval.real import MASK_VALUE
+
+    truth = cv2.imread(str(RAFIANSYAH / "masks" / Path(name).with_suffix(".png")), cv2.IMREAD_GRAYSCALE)
+    result = measure_photo(RAFIANSYAH / "photos" / name, tmp_path)
+    assert len(result["feet"]) == 2 and all(foot["measured"] for foot in result["feet"])
+    for foot in result["feet"]:
+        mask = cv2.imread(str(tmp_path / foot["files"]["mask_png"]), cv2.IMREAD_GRAYSCALE) > 0
+        assert (mask & (truth == MASK_VALUE[foot["side"]])).sum() > 0.5 * mask.sum()
+    upright = measure_photo(
+        RAFIANSYAH / "photos" / name, tmp_path / "upright", config=MeasureConfig(upside_down_min_confidence_gain=None)
+    )
+    assert "feet" not in upright or not all(foot["measured"] for foot in upright["feet"])
+
+
 def test_two_real_feet_standing_touching_are_one_region_whose_halves_are_a_left_and_a_right_foot():
     """The first look at a real photo of both feet standing touching (``../shared/real/rafiansyah``) finds one
     region over both; the halves of its box are taken for two feet where the left/right head is sure they are a

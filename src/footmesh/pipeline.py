@@ -652,7 +652,9 @@ def turned_where_needed(
       (``MeasureConfig.straight_down_ankle_up``), where that look sees it there too;
     - without a floor that tells, the largest foot's ankle below its toes (``MeasureConfig.upside_down_deg``):
       every foot is taken from the photo turned 180 deg, where that look puts the ankle below the toes too
-      (photos looking down at one's own feet, the legs entering from the bottom);
+      (photos looking down at one's own feet, the legs entering from the bottom), or where that look places its
+      largest foot's joints surer by ``MeasureConfig.upside_down_min_confidence_gain`` (the ankle below the toes
+      by less, or a shin upright taken for the largest foot);
     - a foot past the photo's edge (``refusals.cut_off``): that foot from the first turn of
       ``MeasureConfig.turned_looks`` (or upright, for a foot of a turned look) that keeps it in view (a photo
       taken straight down or held sideways, the leg across the picture and the heel under the shin read as past
@@ -692,6 +694,16 @@ def turned_where_needed(
         match = _overlapping(first, turned_feet(quarter_turns))
         return list(turned_feet(quarter_turns)) if match is not None and agrees(match.cues.joints2d_px) else None
 
+    def surer_turned(quarter_turns: int, gain: float) -> list[Located] | None:
+        """The feet of the photo turned ``quarter_turns`` where its largest foot, its ankle below its toes back in
+        the photo (as the upright look saw it), has joints placed ``gain`` more confidently (mean) than the
+        upright look's largest foot; else None."""
+        look = turned_feet(quarter_turns)
+        if not look or leg_angle_deg(look[0].cues.joints2d_px) <= 90.0:
+            return None
+        surer = look[0].cues.joint_confidence.mean() >= first.cues.joint_confidence.mean() + gain
+        return list(look) if surer else None
+
     turned_look = None
     floor_turns = None if floor is None else floor_up_turns(first.mask, *floor, config)
     if floor_turns is not None:
@@ -699,8 +711,11 @@ def turned_where_needed(
     elif floor is not None and config.straight_down_ankle_up and seen_straight_down(first.mask, *floor, config):
         turns = ankle_up_turns(first.cues.joints2d_px)
         turned_look = agreeing(turns, lambda joints: ankle_up_turns(joints) == turns)
-    elif config.upside_down_deg is not None and leg_angle_deg(first.cues.joints2d_px) > config.upside_down_deg:
-        turned_look = agreeing(2, lambda joints: leg_angle_deg(joints) > 90.0)
+    elif leg_angle_deg(first.cues.joints2d_px) > 90.0:
+        if config.upside_down_deg is not None and leg_angle_deg(first.cues.joints2d_px) > config.upside_down_deg:
+            turned_look = agreeing(2, lambda joints: leg_angle_deg(joints) > 90.0)
+        if turned_look is None and config.upside_down_min_confidence_gain is not None:
+            turned_look = surer_turned(2, config.upside_down_min_confidence_gain)
     feet = turned_look or feet
     looks = []
     for foot in feet:
