@@ -906,10 +906,13 @@ def _both_feet(outcomes: list, reference, requested: str) -> tuple[MeasureResult
     measured = [o for o in outcomes if not isinstance(o, Refusal)]
 
     def rank(outcome) -> tuple:
-        result = outcome[0]
+        result, located = outcome[0], outcome[2]
         u = result.measurements["stick_length"]["uncertainty_mm"]
         u = u if u is not None else math.inf
-        return (requested != "auto" and result.side != requested, not result.scaled, u, result.fit["loss"])
+        # unscaled, no uncertainty tells: the foot the networks place most surely (fit costs of feet of different
+        # image sizes do not compare; a charger on the floor, fitted as a tiny foot, cost least)
+        surest = -float(located.cues.joint_confidence.mean())
+        return (requested != "auto" and result.side != requested, not result.scaled, u, surest, result.fit["loss"])
 
     primary = min(measured, key=rank)
     result, files = primary[0], primary[1]

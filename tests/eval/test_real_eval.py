@@ -61,12 +61,15 @@ def test_a_rendered_set_with_its_true_masks_scores_high(tmp_path):
     assert scores[1].measured_ious[0] < 0.3
     assert scores[0].measured_sides == scores[0].feet  # the side result.json gives the foot measured there
     assert scores[1].measured_sides == ("",)  # no mask of its on the (wrong) hand-drawn foot
+    assert (scores[0].off_feet, scores[0].primary_off_feet) == (0, False)
+    assert (scores[1].off_feet, scores[1].primary_off_feet) == (1, True)  # measured on what the drawing says is floor
     assert scores[0].predicted_sides == scores[0].feet  # the shipped RGB network's left/right head
     assert cv2.imread(str(sheet)).shape[:2] == (240, 480)
     table = format_table("renders", summarise(scores))
     assert "2 photos, 2 feet" in table and "mean silhouette IoU" in table and "on the crop" in table
     assert "located foot" in table and re.search(r"photos answered by footmesh measure +2 ", table)
     assert re.search(r"side right, per measured foot +100.0 % of 1 ", table)
+    assert re.search(r"measured feet mostly off every drawn foot +1 ", table)
 
 
 def test_a_folder_without_labels_is_refused_clearly(tmp_path):

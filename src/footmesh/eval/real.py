@@ -31,6 +31,9 @@ if TYPE_CHECKING:
 
 GOOD_IOU = 0.8
 """A photo counts as segmented well from this IoU on (issue 18's share of photos)."""
+OFF_FEET_SHARE = 0.5
+"""A measured foot whose mask has less than this share of its pixels on the hand-drawn feet was measured on
+something else (a shin, a charger on the floor)."""
 THUMB_PX = 240
 """Longer side of one contact-sheet tile."""
 
@@ -43,8 +46,9 @@ class PhotoScore:
     IoU of the silhouette on the crop around each foot; ``located_ious`` that of the pipeline's own located foot
     that best matches each hand-drawn one (0 when it found none; ``located_scores``); with ``measure``,
     ``measured_ious`` that of the best-matching ``mask.png`` that ``footmesh measure`` wrote (0 when it refused the
-    photo: ``answered`` False) and ``measured_sides`` the side its result gives that foot ("" where it measured
-    none there)."""
+    photo: ``answered`` False), ``measured_sides`` the side its result gives that foot ("" where it measured
+    none there), ``off_feet`` how many of its masks lie mostly off every hand-drawn foot (``OFF_FEET_SHARE``)
+    and ``primary_off_feet`` whether the result's own keys (the foot measured best) are such a one."""
 
     photo: str
     iou: float
@@ -57,6 +61,8 @@ class PhotoScore:
     measured_ious: tuple[float, ...] = ()
     answered: bool | None = None
     measured_sides: tuple[str, ...] = ()
+    off_feet: int | None = None
+    primary_off_feet: bool | None = None
 
 
 def mask_scores(predicted: np.ndarray, truth: np.ndarray) -> tuple[float, float, float]:
@@ -124,9 +130,11 @@ def evaluate_set(
         located = () if weights is not None else located_ious(photo, truth_img, feet)
         answered, measured, shown, caption = None, (), predicted, f"IoU {iou:.2f}"
         measured_sides: tuple[str, ...] = ()
+        off_feet, primary_off_feet = None, None
         if measure and weights is None:
             made = measured_ious(photo, truth_img, feet)
             answered, measured, measured_sides, shown = made.answered, made.ious, made.sides, made.union
+            off_feet, primary_off_feet = made.off_feet, made.primary_off_feet
             caption = "mask.png " + (" ".join(f"{i:.2f}" for i in measured) if answered else "refused")
         scores.append(
             PhotoScore(
@@ -141,6 +149,8 @@ def evaluate_set(
                 measured_ious=measured,
                 answered=answered,
                 measured_sides=measured_sides,
+                off_feet=off_feet,
+                primary_off_feet=primary_off_feet,
             )
         )
         if sheet is not None:
@@ -201,12 +211,16 @@ def located_ious(
 class Measured:
     """What ``footmesh measure`` made of a photo (``measured_ious``): whether it answered, per hand-drawn foot the
     IoU of the best-matching ``mask.png`` it wrote (0 where none) and that foot's side in its result ("" where no
-    mask overlaps the foot), and the union of its masks (H, W) bool."""
+    mask overlaps the foot), the union of its masks (H, W) bool, how many of them lie mostly off every hand-drawn
+    foot (``OFF_FEET_SHARE``: a shin, a charger on the floor measured as a foot) and whether the foot its result's
+    own keys give is one of those."""
 
     answered: bool
     ious: tuple[float, ...]
     sides: tuple[str, ...]
     union: np.ndarray
+    off_feet: int = 0
+    primary_off_feet: bool = False
 
 
 def measured_ious(photo: Photo, mask: np.ndarray, feet: tuple[str, ...]) -> Measured:
@@ -225,11 +239,13 @@ def measured_ious(photo: Photo, mask: np.ndarray, feet: tuple[str, ...]) -> Meas
             return Measured(False, (0.0,) * len(feet), ("",) * len(feet), np.zeros(mask.shape, bool))
         # "feet" lists each foot only where two were in view
         entries = result["feet"] if "feet" in result else [{"measured": True, **result}]
+        entries = [entry for entry in entries if entry["measured"]]
         written = [
             (entry["side"], cv2.imread(str(Path(out) / entry["files"]["mask_png"]), cv2.IMREAD_GRAYSCALE) > 0)
             for entry in entries
-            if entry["measured"]
         ]
+        # the result's own keys are the foot measured best, whose mask is mask.png
+        primary = [entry["files"]["mask_png"] for entry in entries].index("mask.png")
     ious, sides = [], []
     for side in feet:
         truth = mask == MASK_VALUE[side]
@@ -239,7 +255,8 @@ def measured_ious(photo: Photo, mask: np.ndarray, feet: tuple[str, ...]) -> Meas
         sides.append(said if best is not None and (best & truth).any() else "")
     masks = [m for _, m in written]
     union = np.any(masks, axis=0) if masks else np.zeros(mask.shape, bool)
-    return Measured(True, tuple(ious), tuple(sides), union)
+    off = [(m & (mask > 0)).sum() < OFF_FEET_SHARE * m.sum() for m in masks]
+    return Measured(True, tuple(ious), tuple(sides), union, sum(off), off[primary])
 
 
 def _best_ious(found: list[np.ndarray], mask: np.ndarray, feet: tuple[str, ...]) -> tuple[float, ...]:
@@ -306,6 +323,7 @@ def summarise(scores: list[PhotoScore]) -> dict[str, float]:
     located = [i for s in scores for i in s.located_ious]
     measured = [i for s in scores for i in s.measured_ious]
     measured_sides = [(t, p) for s in scores for t, p in zip(s.feet, s.measured_sides, strict=False) if p]
+    answered = [s for s in scores if s.answered]
     return {
         "photos": len(scores),
         "feet": sum(len(s.feet) for s in scores),
@@ -320,6 +338,8 @@ def summarise(scores: list[PhotoScore]) -> dict[str, float]:
         "side_right_share": float(np.mean([t == p for t, p in judged])) if judged else None,
         "measured_feet": len(measured_sides) if measured else None,
         "measured_side_right_share": float(np.mean([t == p for t, p in measured_sides])) if measured_sides else None,
+        "measured_off_feet": sum(s.off_feet for s in answered) if measured else None,
+        "primary_off_feet": sum(bool(s.primary_off_feet) for s in answered) if measured else None,
     }
 
 
@@ -337,6 +357,8 @@ def format_table(name: str, summary: dict[str, float]) -> str:
         ("photos answered by footmesh measure", _or_dash(summary["answered"], "d"), "- (--measure)"),
         ("side right, per foot", "no left/right head" if side is None else f"{100 * side:.1f} %", ">= 95 %"),
         ("side right, per measured foot", _side_share(summary), "- (--measure: the side in result.json)"),
+        ("measured feet mostly off every drawn foot", _or_dash(summary["measured_off_feet"], "d"), "0 (--measure)"),
+        ("  of them the result's own foot", _or_dash(summary["primary_off_feet"], "d"), "0 (--measure)"),
     ]
     width = max(len(r[0]) for r in rows)
     lines = [f"real photos: {name} ({summary['photos']} photos, {summary['feet']} feet), RGB network, whole photo"]
