@@ -51,7 +51,13 @@ def run(views: list[str], n: int, seed: int) -> str:
 
     configs = {
         "turned looks": MeasureConfig(),
-        "upright only": replace(MeasureConfig(), turned_looks=(), upside_down_deg=None, floor_up_turn_deg=None),
+        "upright only": replace(
+            MeasureConfig(),
+            turned_looks=(),
+            upside_down_deg=None,
+            upside_down_min_confidence_gain=None,
+            floor_up_turn_deg=None,
+        ),
     }
     lines = [
         "| views | turned deg | pipeline | answered | with mm | length MAE mm | read turned |",

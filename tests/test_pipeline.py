@@ -960,7 +960,8 @@ def test_a_photo_held_upside_down_is_read_turned_and_measures_as_held_upright(tm
     error, messages = length_error(MeasureConfig())
     assert any("turned 180 deg" in m for m in messages)
     assert abs(error) < 12.0
-    upright, messages = length_error(MeasureConfig(upside_down_deg=None, floor_up_turn_deg=None))
+    never = MeasureConfig(upside_down_deg=None, upside_down_min_confidence_gain=None, floor_up_turn_deg=None)
+    upright, messages = length_error(never)
     assert not any("turned" in m for m in messages)
     assert abs(upright) > 20.0
 

@@ -329,7 +329,8 @@ class MeasureConfig:
     the renders the networks learnt from (any side and height, never from behind the heel; 150 of seed 1) the true
     angle is at most 147 deg (95 % below 123); on the 80 real photos looking down at one's own feet
     (``../shared/real/rafiansyah``) the networks' is 145-180, and turned their silhouettes cover the feet, not the
-    shins (located-foot IoU 0.418 -> 0.620). None: never turned."""
+    shins (located-foot IoU 0.418 -> 0.620). None: never turned by this angle (``upside_down_min_confidence_gain``
+    may still turn it)."""
     upside_down_min_confidence_gain: float | None = 0.25
     """Where no floor tells which way up the photo is and the largest foot's ankle lies below its toe tips (leg
     angle over 90 deg) but the rule above does not turn it (the angle under ``upside_down_deg``, or the turned

@@ -599,7 +599,6 @@ def _run_stages(
         sides = [(s, "pair") for s in stood]
     else:
         sides = [("auto", "fit")] * len(feet)
-
     outcomes: list[tuple[MeasureResult, _Files, Located, Any, np.ndarray] | Refusal] = []
     for located, (foot_side, side_source) in zip(feet, sides, strict=True):
         try:
@@ -711,8 +710,8 @@ def turned_where_needed(
     elif floor is not None and config.straight_down_ankle_up and seen_straight_down(first.mask, *floor, config):
         turns = ankle_up_turns(first.cues.joints2d_px)
         turned_look = agreeing(turns, lambda joints: ankle_up_turns(joints) == turns)
-    elif leg_angle_deg(first.cues.joints2d_px) > 90.0:
-        if config.upside_down_deg is not None and leg_angle_deg(first.cues.joints2d_px) > config.upside_down_deg:
+    elif (leg_deg := leg_angle_deg(first.cues.joints2d_px)) > 90.0:
+        if config.upside_down_deg is not None and leg_deg > config.upside_down_deg:
             turned_look = agreeing(2, lambda joints: leg_angle_deg(joints) > 90.0)
         if turned_look is None and config.upside_down_min_confidence_gain is not None:
             turned_look = surer_turned(2, config.upside_down_min_confidence_gain)
