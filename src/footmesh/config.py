@@ -384,11 +384,13 @@ class MeasureConfig:
     or the fit of both sides decides as before. Measured with the shipped RGB network (crops around hand-drawn feet
     of ``../shared/real/rafiansyah``): 52 % of real feet pass 0.95, and 96 % of those have the right side (80.5 % of
     all feet); on the synthetic test split 98 % of all sides are right."""
-    pair_side_max_turn_deg: float | None = 90.0
+    pair_side_max_turn_deg: float | None = 100.0
     """With ``--side auto`` and two feet in view, their sides come from where they stand
-    (``pipeline.pair_sides``) when their heel-to-toe directions in the photo lie within this of each other (a
-    right angle: each within 45 deg of the way the two point together); None: never. Photos looking down at one's
-    own feet show them 55-86 deg apart (their splay and the perspective), beyond the 60 deg first tried."""
+    (``pipeline.pair_sides``) when their midfoot-to-toes directions in the photo lie within this of each other;
+    None: never. Photos looking down at one's own feet show their heel-to-toe directions 55-86 deg apart (their
+    splay and the perspective), beyond the 60 deg first tried; 90 deg was then the limit for heel-to-toe
+    directions, and a pair's midfoot-to-toes directions splay about 12 deg more (the model foot's toe tips lie
+    5.8 deg outward of its midfoot's line from the heel, 2.3 from the heel's)."""
     pair_side_min_lateral: float = 1.0
     """...and the step from one foot to the other is at least this many times more across their toes' direction
     than along it (1.0: within 45 deg of side by side): one foot set before the other says nothing about which is

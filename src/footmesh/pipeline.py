@@ -878,17 +878,28 @@ def _foot_of_side(feet: list[Located], side: str, stood: tuple[str, str] | None)
     )
 
 
+def _toes_direction(joints2d_px: np.ndarray) -> np.ndarray | None:
+    """The unit direction (2,) in the picture from a foot's midfoot joint to the mean of its toe tips (joints
+    (18, 2) px); None where they coincide."""
+    joints = np.asarray(joints2d_px, np.float64)
+    step = joints[list(sk.TOE_TIPS)].mean(axis=0) - joints[sk.JOINT_INDEX["midfoot"]]
+    length = float(np.linalg.norm(step))
+    return step / length if length > 1e-6 else None
+
+
 def pair_sides(joints_a: np.ndarray, joints_b: np.ndarray, config: MeasureConfig) -> tuple[str, str] | None:
     """The sides of two feet standing side by side, from their joints (18, 2) px each: seen from above the floor
     (as any photo of the floor is), a person's left foot stands to the left of where their toes point. None where
     the feet do not point the same way within ``MeasureConfig.pair_side_max_turn_deg`` or stand more one before
-    the other than side by side (``MeasureConfig.pair_side_min_lateral``)."""
-    axes = [foot_axes(joints) for joints in (joints_a, joints_b)]
+    the other than side by side (``MeasureConfig.pair_side_min_lateral``). Where a foot points is read from its
+    midfoot to its toe tips, not from its heel: photos looking down at one's own feet hide the heels under the
+    shins, and a heel joint placed on the shin turned a foot's heel-to-toe direction by up to 60 deg."""
+    axes = [_toes_direction(joints) for joints in (joints_a, joints_b)]
     if config.pair_side_max_turn_deg is None or axes[0] is None or axes[1] is None:
         return None
-    if float(axes[0].axis @ axes[1].axis) < math.cos(math.radians(config.pair_side_max_turn_deg)):
+    if float(axes[0] @ axes[1]) < math.cos(math.radians(config.pair_side_max_turn_deg)):
         return None
-    forward = axes[0].axis + axes[1].axis
+    forward = axes[0] + axes[1]
     forward /= np.linalg.norm(forward)
     left = np.array([forward[1], -forward[0]])  # a quarter turn counter-clockwise on the screen (y points down)
     forefeet = [np.asarray(joints, np.float64)[: sk.HEEL_BRANCH[0]].mean(axis=0) for joints in (joints_a, joints_b)]
