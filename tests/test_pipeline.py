@@ -758,6 +758,27 @@ def test_two_feet_touching_each_keep_the_pixels_nearer_their_own_joints(seed):
 RAFIANSYAH = Path(__file__).resolve().parents[1] / ".." / "shared" / "real" / "rafiansyah"
 
 
+def _measured_real_photo(name: str, out: Path) -> tuple[dict, dict[str, np.ndarray], list[tuple[dict, np.ndarray]]]:
+    """``measure_photo`` on a rafiansyah photo: its result, the hand-drawn feet by side ((H, W) bool each) and
+    each measured foot's entry of ``feet`` with its ``mask.png`` ((H, W) bool)."""
+    from footmesh.eval.real import MASK_VALUE
+
+    drawn = cv2.imread(str(RAFIANSYAH / "masks" / Path(name).with_suffix(".png")), cv2.IMREAD_GRAYSCALE)
+    result = measure_photo(RAFIANSYAH / "photos" / name, out)
+    masks = [
+        (foot, cv2.imread(str(out / foot["files"]["mask_png"]), cv2.IMREAD_GRAYSCALE) > 0)
+        for foot in result.get("feet", [])
+        if foot["measured"]
+    ]
+    return result, {side: drawn == value for side, value in MASK_VALUE.items()}, masks
+
+
+def _on_its_own_side(mask: np.ndarray, drawn: dict[str, np.ndarray], side: str) -> bool:
+    """Far more of a foot's mask (three times) lies on the hand-drawn foot of its ``side`` than on the other."""
+    other = "left" if side == "right" else "right"
+    return (mask & drawn[side]).sum() > 3 * (mask & drawn[other]).sum()
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize(
     "name",
@@ -771,16 +792,11 @@ def test_two_real_feet_standing_touching_are_each_measured_on_their_own_foot_as_
     touching, taken looking down at them: each measured foot lies on the hand-drawn foot of the side it was given
     (far more of its mask on that foot than on the other). They were found as one foot between them, fitted as a
     left foot."""
-    from footmesh.eval.real import MASK_VALUE
-
-    truth = cv2.imread(str(RAFIANSYAH / "masks" / Path(name).with_suffix(".png")), cv2.IMREAD_GRAYSCALE)
-    result = measure_photo(RAFIANSYAH / "photos" / name, tmp_path)
-    assert len(result["feet"]) == 2 and all(foot["measured"] for foot in result["feet"])
-    for foot in result["feet"]:
-        mask = cv2.imread(str(tmp_path / foot["files"]["mask_png"]), cv2.IMREAD_GRAYSCALE) > 0
-        assert mask.shape == truth.shape
-        other = "left" if foot["side"] == "right" else "right"
-        assert (mask & (truth == MASK_VALUE[foot["side"]])).sum() > 3 * (mask & (truth == MASK_VALUE[other])).sum()
+    result, drawn, masks = _measured_real_photo(name, tmp_path)
+    assert len(result["feet"]) == 2 and len(masks) == 2
+    for foot, mask in masks:
+        assert mask.shape == drawn["left"].shape
+        assert _on_its_own_side(mask, drawn, foot["side"])
     assert sorted(foot["side"] for foot in result["feet"]) == ["left", "right"]
 
 
@@ -797,14 +813,10 @@ def test_a_real_photo_whose_shin_upright_is_the_largest_foot_is_read_turned_wher
     by the leg: upright, the networks took a shin for the largest foot (joint confidence 0.02-0.04) and measured
     the near foot alone; turned 180 deg they place both feet's joints surely (0.47-0.55,
     ``MeasureConfig.upside_down_min_confidence_gain``), and each measured foot lies on its hand-drawn foot."""
-    from footmesh.eval.real import MASK_VALUE
-
-    truth = cv2.imread(str(RAFIANSYAH / "masks" / Path(name).with_suffix(".png")), cv2.IMREAD_GRAYSCALE)
-    result = measure_photo(RAFIANSYAH / "photos" / name, tmp_path)
-    assert len(result["feet"]) == 2 and all(foot["measured"] for foot in result["feet"])
-    for foot in result["feet"]:
-        mask = cv2.imread(str(tmp_path / foot["files"]["mask_png"]), cv2.IMREAD_GRAYSCALE) > 0
-        assert (mask & (truth == MASK_VALUE[foot["side"]])).sum() > 0.5 * mask.sum()
+    result, drawn, masks = _measured_real_photo(name, tmp_path)
+    assert len(result["feet"]) == 2 and len(masks) == 2
+    for foot, mask in masks:
+        assert (mask & drawn[foot["side"]]).sum() > 0.5 * mask.sum()
     never = MeasureConfig(upside_down_min_confidence_gain=None)
     try:  # upright: the shin and the near foot, one of them or both refused
         upright = measure_photo(RAFIANSYAH / "photos" / name, tmp_path / "upright", config=never)
@@ -818,12 +830,10 @@ def test_an_unscaled_photo_of_a_foot_and_a_foot_like_object_keeps_the_foot_the_n
     """A real photo (``../shared/real/rafiansyah``, one foot drawn) of one foot and a phone charger on the floor,
     both measured unscaled as feet: the result's own keys (``mask.png``) are the foot's, whose joints the networks
     place surely (0.63 against 0.19), not the charger's, whose tiny fit cost less."""
-    name = "91_55cm_17-May-2023-12_08_18.jpg"
-    truth = cv2.imread(str(RAFIANSYAH / "masks" / Path(name).with_suffix(".png")), cv2.IMREAD_GRAYSCALE) > 0
-    result = measure_photo(RAFIANSYAH / "photos" / name, tmp_path)
+    result, drawn, _ = _measured_real_photo("91_55cm_17-May-2023-12_08_18.jpg", tmp_path)
     assert not result["scaled"]
     mask = cv2.imread(str(tmp_path / "mask.png"), cv2.IMREAD_GRAYSCALE) > 0
-    assert (mask & truth).sum() > 0.5 * mask.sum()
+    assert (mask & (drawn["left"] | drawn["right"])).sum() > 0.5 * mask.sum()
 
 
 @pytest.mark.slow
@@ -838,16 +848,10 @@ def test_two_real_feet_whose_heels_the_shins_hide_take_their_sides_from_where_th
     """Real photos (``../shared/real/rafiansyah``) looking down at both feet, the heels under the shins: where
     the feet point is read from midfoot to toes (``pipeline.pair_sides``), and each foot is given the side it is,
     from where the two stand. From their heels they told nothing, and both feet were fitted as left ones."""
-    from footmesh.eval.real import MASK_VALUE
-
-    truth = cv2.imread(str(RAFIANSYAH / "masks" / Path(name).with_suffix(".png")), cv2.IMREAD_GRAYSCALE)
-    result = measure_photo(RAFIANSYAH / "photos" / name, tmp_path)
+    result, drawn, masks = _measured_real_photo(name, tmp_path)
     assert [foot["side_source"] for foot in result["feet"]] == ["pair", "pair"]
     assert sorted(foot["side"] for foot in result["feet"]) == ["left", "right"]
-    for foot in result["feet"]:
-        mask = cv2.imread(str(tmp_path / foot["files"]["mask_png"]), cv2.IMREAD_GRAYSCALE) > 0
-        other = "left" if foot["side"] == "right" else "right"
-        assert (mask & (truth == MASK_VALUE[foot["side"]])).sum() > 3 * (mask & (truth == MASK_VALUE[other])).sum()
+    assert len(masks) == 2 and all(_on_its_own_side(mask, drawn, foot["side"]) for foot, mask in masks)
 
 
 def test_two_real_feet_standing_touching_are_one_region_whose_halves_are_a_left_and_a_right_foot():
