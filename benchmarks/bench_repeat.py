@@ -6,8 +6,9 @@ after small changes a phone or a messenger makes every day: sensor noise (SD 8 o
 at quality 60, a warm cast (an indoor lamp: blue x0.75, green x0.9), a cool one (shade: red x0.85), and the phone
 held sideways (the photo turned 90 deg either way, as a phone that wrote no orientation leaves it). The table
 gives each photo's lengths and their spread (largest minus smallest, over the versions with millimetres); the
-summary the median spread and the photos whose every version lies within 3 mm. With ``--renders N`` the same on
-``N`` renders of ``--views`` (RGB + A4 sheet, K.json given), with the true length beside them.
+summary the median spread, the mean SD of a photo's versions and the photos whose every version lies within 3 mm.
+With ``--renders N`` the same on ``N`` renders of ``--views`` (RGB + A4 sheet, K.json given), with the true length
+beside them.
 
 Run: ``python benchmarks/bench_repeat.py [--photos DIR] [--renders 8] [--views front] [--versions NAME ...]``.
 """
@@ -132,7 +133,14 @@ def format_rows(rows: list[tuple[str, dict[str, float | None], float | None]]) -
     known = [s for s in spreads if s is not None]
     median = f"{statistics.median(known):.1f}" if known else "-"
     within = sum(s <= WITHIN_MM for s in known)
-    lines.append(f"\nmedian spread {median} mm; every version within {WITHIN_MM:.0f} mm: {within} of {len(rows)}")
+    # one odd version sets a spread; the SD over all of a photo's versions says how far they scatter as a whole
+    measured = ([v for v in lengths.values() if v is not None] for _, lengths, _ in rows)
+    sds = [statistics.pstdev(m) for m in measured if len(m) > 1]
+    mean_sd = f"{statistics.mean(sds):.1f}" if sds else "-"
+    lines.append(
+        f"\nmedian spread {median} mm; mean SD over a photo's versions {mean_sd} mm; "
+        f"every version within {WITHIN_MM:.0f} mm: {within} of {len(rows)}"
+    )
     if all(truth is not None for _, _, truth in rows):
         errors = {n: [abs(lengths[n] - truth) for _, lengths, truth in rows if lengths[n] is not None] for n in names}
         lines.append(

@@ -29,6 +29,7 @@ from footmesh.fit import (
     silhouette_contour,
     skin_batched,
 )
+from footmesh.fit.core import _far_along_sight
 from footmesh.model import lbs
 from footmesh.model import skeleton as sk
 from footmesh.model.ik import uniform_angles
@@ -387,3 +388,11 @@ def test_joints_collapsed_onto_one_point_still_give_a_fit(scenes):
     cues = Cues(cues.silhouette, joints, cues.joint_confidence, "rgb")
     fit = fit_foot(cues, sample["K"], side=_side(sample), config=FitConfig(stages=(("rigid", 2), ("full", 2))))
     assert np.isfinite(fit.vertices_cam).all()
+
+
+def test_a_pixel_shows_the_leg_where_its_sight_line_meets_it():
+    K = np.array([[500.0, 0.0, 100.0], [0.0, 500.0, 100.0], [0.0, 0.0, 1.0]])
+    leg = LegCylinder(centre=np.array([0.0, 0.0, 500.0]), axis=np.array([0.0, -1.0, 0.0]), radius=40.0)
+    # the principal point looks straight at the leg; 100 px aside is 100 mm aside at its distance, past its 40 mm
+    pixels = np.array([[100.0, 100.0], [200.0, 100.0], [130.0, 100.0]])
+    np.testing.assert_array_equal(leg_occludes(_far_along_sight(pixels, K), leg), [True, False, True])

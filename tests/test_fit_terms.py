@@ -49,3 +49,38 @@ def test_a_term_added_in_one_place_is_fitted(monkeypatch):
     assert "midfoot_depth" in pulled.loss_terms and "midfoot_depth" not in plain.loss_terms
     assert abs(pulled.joints_cam[0, 2] - target) < abs(plain.joints_cam[0, 2] - target) - 1.0  # moved towards it
     assert np.isfinite(pulled.loss)
+
+
+def test_the_outline_where_the_leg_hides_the_foot_is_not_matched():
+    """Contour samples whose pixel just outside the silhouette shows the model's leg are occlusion, not the foot's
+    edge: the contour term leaves them out (``FitConfig.contour_leg_probe_px``)."""
+    from types import SimpleNamespace
+
+    import torch
+
+    # a foot's outline along x = 10 (outward +x) and along x = 60 (outward +x); the leg covers x > 62
+    contour = np.array([[10.0, y] for y in range(5)] + [[60.0, y] for y in range(5)])
+    normal = np.tile([1.0, 0.0], (len(contour), 1))
+    vertices = np.stack([np.r_[np.full(5, 9.0), np.full(5, 59.0)], np.tile(np.arange(5.0), 2)], axis=1)
+    frame = terms.Frame(
+        vertices=np.zeros((10, 3)),
+        normals=np.zeros((10, 3)),
+        projected=vertices,
+        subset=np.arange(10),
+        hidden=np.zeros(10, bool),
+        facing=np.arange(10),
+        rim=np.zeros(0, int),
+        sample=lambda image, uv: np.zeros(len(uv)),
+        shows_leg=lambda uv: uv[:, 0] > 62.0,
+    )
+
+    def matched(probe_px):
+        problem = SimpleNamespace(
+            ev=SimpleNamespace(contour=contour, contour_normal=normal),
+            config=FitConfig(contour_leg_probe_px=probe_px),
+            arrays=SimpleNamespace(mean=torch.zeros(10, 3)),
+        )
+        return terms.BY_NAME["contour"].associate(problem, frame)["points"].numpy()
+
+    np.testing.assert_array_equal(np.unique(matched(3.0)[:, 0]), [10.0])  # the leg's side left out
+    assert len(matched(None)) == len(contour)  # off: every sample matched

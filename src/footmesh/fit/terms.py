@@ -43,6 +43,8 @@ class Frame:
     rim: np.ndarray
     sample: Callable[[np.ndarray, np.ndarray], np.ndarray]
     """``sample(image, uv)``: an image read bilinearly at (M, 2) px."""
+    shows_leg: Callable[[np.ndarray], np.ndarray]
+    """``shows_leg(uv)``: (M,) bool, the sight line through each pixel (M, 2) meets the model's leg."""
 
     @property
     def num(self) -> int:
@@ -158,6 +160,8 @@ class Contour(Term):
         on_rim = nearest >= num
         rest_height = problem.arrays.mean[:, 2].numpy()[np.concatenate([frame.subset, frame.rim])[nearest]]
         keep = rest_height < cfg.contour_max_height_mm
+        if cfg.contour_leg_probe_px is not None:
+            keep &= ~frame.shows_leg(ev.contour + cfg.contour_leg_probe_px * ev.contour_normal)
         nearest, on_rim = nearest[keep], on_rim[keep]
         return {
             "nearest": nearest,
