@@ -74,13 +74,21 @@ def test_the_outline_where_the_leg_hides_the_foot_is_not_matched():
         shows_leg=lambda uv: uv[:, 0] > 62.0,
     )
 
-    def matched(probe_px):
+    def matched(probe_px, max_fraction=0.5):
         problem = SimpleNamespace(
             ev=SimpleNamespace(contour=contour, contour_normal=normal),
-            config=FitConfig(contour_leg_probe_px=probe_px),
+            config=FitConfig(contour_leg_probe_px=probe_px, contour_leg_max_fraction=max_fraction),
             arrays=SimpleNamespace(mean=torch.zeros(10, 3)),
         )
-        return terms.BY_NAME["contour"].associate(problem, frame)["points"].numpy()
+        return terms.BY_NAME["contour"].associate(problem, frame)
 
-    np.testing.assert_array_equal(np.unique(matched(3.0)[:, 0]), [10.0])  # the leg's side left out
-    assert len(matched(None)) == len(contour)  # off: every sample matched
+    def points(probe_px, max_fraction=0.5):
+        return matched(probe_px, max_fraction)["points"].numpy()
+
+    np.testing.assert_array_equal(np.unique(points(3.0)[:, 0]), [10.0])  # the leg's side left out
+    assert len(points(None)) == len(contour)  # off: every sample matched
+    # the samples left out hand their weight to the rest: hiding more of the outline does not make a pose cheaper
+    assert matched(3.0)["scale"] == pytest.approx(2.0 * matched(None)["scale"])
+    # a leg that would hide more of the outline than the limit (here half of it) hides none: a pose cannot shed
+    # the silhouette by pointing the leg at the camera
+    assert len(points(3.0, max_fraction=0.4)) == len(contour)

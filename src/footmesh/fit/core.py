@@ -191,9 +191,13 @@ class FitConfig:
     3.8 mm; docs/fit.md)."""
     contour_leg_probe_px: float | None = 3.0
     """Contour samples where the pixel this far outside the silhouette (along its outward normal) shows the model's
-    leg are not used either: there the foot's outline is where the leg hides it, not the foot's edge, and it
-    pulled the hidden heel in (front views, seeds 4242 / 777: length MAE 6.81 / 7.39 -> 5.94 / 6.80 mm on the
-    photos measured both ways; docs/fit.md). None: all are used."""
+    leg are not used either, their weight handed to the rest: there the foot's outline is where the leg hides it,
+    not the foot's edge, and it pulled the hidden heel in (front views, seeds 4242 / 777: length MAE 6.81 / 7.39
+    -> 6.39 / 7.11 mm on the photos measured both ways; docs/fit.md). None: all are used."""
+    contour_leg_max_fraction: float = 0.5
+    """... unless the leg would hide more than this fraction of the outline: a shin crossing the foot hides a
+    stretch of it (13-35 % on front renders), and a pose whose leg points at the camera and hides it all must not
+    escape the silhouette that way (two of seven real A4 photos were fitted so, on no outline at all)."""
     depth_samples: int = 800
     depth_erode_px: int = 2
     full_starts: int = 2

@@ -160,8 +160,14 @@ class Contour(Term):
         on_rim = nearest >= num
         rest_height = problem.arrays.mean[:, 2].numpy()[np.concatenate([frame.subset, frame.rim])[nearest]]
         keep = rest_height < cfg.contour_max_height_mm
+        counted = len(ev.contour)
         if cfg.contour_leg_probe_px is not None:
-            keep &= ~frame.shows_leg(ev.contour + cfg.contour_leg_probe_px * ev.contour_normal)
+            behind_leg = frame.shows_leg(ev.contour + cfg.contour_leg_probe_px * ev.contour_normal)
+            if behind_leg.mean() <= cfg.contour_leg_max_fraction:
+                keep &= ~behind_leg
+                # their weight goes to the rest: a pose whose leg hides more of the outline must not cost less for
+                # it (the side whose fit hid more won the comparison of the two sides' costs)
+                counted -= int(behind_leg.sum())
         nearest, on_rim = nearest[keep], on_rim[keep]
         return {
             "nearest": nearest,
@@ -169,7 +175,7 @@ class Contour(Term):
             "extra": frame.rim[nearest[on_rim] - num],
             "points": t(ev.contour[keep]),
             "normal": t(ev.contour_normal[keep]),
-            "scale": cfg.contour_count / len(ev.contour),
+            "scale": cfg.contour_count / max(counted, 1),
         }
 
     def place(self, block, position):
