@@ -391,6 +391,7 @@ def test_joints_collapsed_onto_one_point_still_give_a_fit(scenes):
 
 
 def test_a_pixel_shows_the_leg_where_its_sight_line_meets_it():
+    """``_far_along_sight`` + ``leg_occludes``: what the contour term asks of the pixel just beyond the outline."""
     K = np.array([[500.0, 0.0, 100.0], [0.0, 500.0, 100.0], [0.0, 0.0, 1.0]])
     leg = LegCylinder(centre=np.array([0.0, 0.0, 500.0]), axis=np.array([0.0, -1.0, 0.0]), radius=40.0)
     # the principal point looks straight at the leg; 100 px aside is 100 mm aside at its distance, past its 40 mm
