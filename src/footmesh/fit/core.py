@@ -751,8 +751,7 @@ def _leg_cylinder(cap: np.ndarray, cap_normals: np.ndarray, foot_up: np.ndarray)
 
 def _far_along_sight(uv: np.ndarray, K: np.ndarray) -> np.ndarray:
     """(M, 3) mm: points far along the sight lines through the pixels ``uv`` (M, 2), beyond anything in view."""
-    rays = np.concatenate([uv, np.ones((len(uv), 1))], axis=1) @ np.linalg.inv(K).T
-    return rays * (FAR_MM / np.linalg.norm(rays, axis=1, keepdims=True))
+    return unproject(uv, np.full(len(uv), FAR_MM), K)
 
 
 def leg_occludes(points: np.ndarray, leg: LegCylinder, margin_mm: float = 2.0) -> np.ndarray:
