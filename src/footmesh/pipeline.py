@@ -144,7 +144,8 @@ def locate_feet(
     """Find the feet, largest first (one, or two when a second region is at least ``config.second_foot_ratio``
     of the first): cues on the whole photo (padded square; with RGB-D, where its network finds no foot there, the
     RGB network's), then again on a square crop around each region framed like the training images (the foot's
-    longer side ``config.crop_fill`` of the crop), the silhouette then cut to where that crop's joints say the foot
+    longer side ``config.crop_fill`` of the crop; once more framed on the foot found where it filled far less:
+    ``_located_in``), the silhouette then cut to where that crop's joints say the foot
     can be (``cues.trim``) and snapped to the photo's edges (or, with a depth map alone, to those of the height
     above the floor; K (3, 3))."""
     ref = rgb if rgb is not None else depth
@@ -171,11 +172,12 @@ def locate_feet(
             _same_foot(located.cues, foot.cues, config.same_foot_joints) for foot in feet
         ):
             feet.append(located)
-            boxes.append(stats[region, :4])
+            boxes.append(_boxes_seen_in(located, stats[region, :4], config))
     if not feet:
         raise refusals.foot_vanished()
     if len(feet) == 1:
-        return _two_feet_as_one(rgb, depth, K, kind, config, boxes[0]) or feet
+        # the region's halves, then (where the closer look found two feet as one) those of what it found
+        return next(filter(None, (_two_feet_as_one(rgb, depth, K, kind, config, box) for box in boxes[0])), feet)
     return feet
 
 
@@ -205,7 +207,7 @@ def _two_feet_as_one(rgb, depth, K, kind: str, config: MeasureConfig, box: np.nd
     for i in np.argsort(pairs)[::-1]:
         if pairs[i] < sure:
             continue
-        feet = [_located_in(rgb, depth, K, kind, config, np.array(half)) for half in splits[i]]
+        feet = [_look_in(rgb, depth, K, kind, config, np.array(half)) for half in splits[i]]
         if feet[0] is None or feet[1] is None or _same_foot(feet[0].cues, feet[1].cues, config.same_foot_joints):
             continue
         hulls = [_joints_hull(foot.cues.joints2d_px, foot.mask.shape) for foot in feet]
@@ -292,6 +294,34 @@ def _wider_where_better(
 
 
 def _located_in(rgb, depth, K, kind: str, config: MeasureConfig, box: np.ndarray) -> Located | None:
+    """``_look_in`` the box, then, where the foot found fills much less of the crop than the networks learnt feet
+    at (``MeasureConfig.reframe_below``), again on the crop around that foot, kept where it places the joints no
+    less surely: a region of shins and feet framed a foot far smaller than any the networks saw."""
+    located = _look_in(rgb, depth, K, kind, config, box)
+    if located is None or config.reframe_below is None:
+        return located
+    found = _mask_box(located.mask)
+    if max(found[2:]) >= config.reframe_below * config.crop_fill * located.crop.side:
+        return located
+    closer = _look_in(rgb, depth, K, kind, config, found)
+    if closer is None or closer.cues.joint_confidence.mean() < located.cues.joint_confidence.mean():
+        return located
+    return closer
+
+
+def _mask_box(mask: np.ndarray) -> np.ndarray:
+    """The box (x, y, w, h px) around a non-empty (H, W) bool mask."""
+    ys, xs = np.nonzero(mask)
+    return np.array([xs.min(), ys.min(), xs.max() - xs.min() + 1, ys.max() - ys.min() + 1])
+
+
+def _boxes_seen_in(located: Located, box: np.ndarray, config: MeasureConfig) -> list[np.ndarray]:
+    """The boxes (x, y, w, h px) the foot located in region ``box`` was seen in: ``box`` and, where
+    ``_located_in`` looked again closer, the box of the silhouette that look found."""
+    return [box] if located.crop == crop_around(*box, config.crop_fill) else [box, _mask_box(located.mask)]
+
+
+def _look_in(rgb, depth, K, kind: str, config: MeasureConfig, box: np.ndarray) -> Located | None:
     """The second pass on the crop around one region's box (x, y, w, h px): its cues and silhouette (the part its
     own joints lie on, else the part most inside the box), or None when the region vanishes on the closer look."""
     from footmesh.fit import MIN_SILHOUETTE_PX
