@@ -255,7 +255,7 @@ class MeasureConfig:
     """A foot found filling less than this fraction of ``crop_fill`` of its crop is looked at again in a crop
     framed on it (``pipeline._located_in``; the networks learnt feet at 0.8-1.25 of ``crop_fill``, so below 0.8
     with a margin). Looking down at one's own feet (``../shared/real/rafiansyah``) the first look framed shins and
-    feet as one region: mask.png IoU 0.751 -> 0.761, 79 -> 80 of 80 photos answered; of 380 renders measured
+    feet as one region: mask.png IoU 0.751 -> 0.761, 79 -> 80 of 80 photos answered; of 410 renders measured
     end to end (``eval measure``: RGB-D guided, random, ood; RGB + reference guided, front, random, ood; plain RGB
     guided, ood) two moved. None: never."""
     min_foot_fraction: float = 0.004
