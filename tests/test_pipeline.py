@@ -913,6 +913,34 @@ def test_a_real_foot_the_first_look_framed_with_the_shins_is_looked_at_again_clo
     assert confidence > confidence_wide + 0.2
 
 
+def test_a_real_far_foot_smaller_than_the_near_foot_with_its_shin_is_found_as_the_second_foot():
+    """A real photo looking down at both feet (``../shared/real/rafiansyah``, feet drawn by hand), turned so that
+    the legs rise up the picture: the first look's region of the near foot takes in its shin, and the far foot's
+    is 0.31 of it, under ``MeasureConfig.second_foot_ratio``: one foot was found. Looked at closer and cut to its
+    joints (``second_look_ratio``), the far foot is 0.65 of the near one, and each foot's joints lie on its own
+    drawn foot."""
+    from footmesh.pipeline import locate_feet
+
+    name = "64_49cm_28-May-2023-04_36_09.jpg"
+    rgb = cv2.cvtColor(cv2.imread(str(RAFIANSYAH / "photos" / name)), cv2.COLOR_BGR2RGB)
+    drawn = cv2.imread(str(RAFIANSYAH / "masks" / Path(name).with_suffix(".png")), cv2.IMREAD_GRAYSCALE)
+    working = MeasureConfig().rgb_working_max_side / max(rgb.shape[:2])
+    upright = np.ascontiguousarray(rgb[::-1, ::-1])  # the legs rising up the picture, as the networks learnt
+    upright = cv2.resize(upright, None, fx=working, fy=working, interpolation=cv2.INTER_AREA)
+    drawn = cv2.resize(drawn[::-1, ::-1], upright.shape[1::-1], interpolation=cv2.INTER_NEAREST)
+    feet = locate_feet(upright, None, None, "rgb", MeasureConfig())
+    assert len(feet) == 2
+    on = []
+    for foot in feet:
+        x, y = np.rint(foot.cues.joints2d_px).astype(int).T
+        labels = drawn[y.clip(0, drawn.shape[0] - 1), x.clip(0, drawn.shape[1] - 1)]
+        counts = np.bincount(labels, minlength=3)[1:]
+        assert counts.max() >= 12  # most of its joints on one drawn foot
+        on.append(int(np.argmax(counts)))
+    assert sorted(on) == [0, 1]  # a foot each
+    assert len(locate_feet(upright, None, None, "rgb", MeasureConfig(second_look_ratio=None))) == 1
+
+
 def test_a_real_photo_whose_edge_cuts_the_sheet_is_measured_and_says_so(tmp_path):
     """A real photo cropped so that the sheet's far end leaves the picture (``eval.real_reference.score_cropped``:
     the whole sheet's focal length, the principal point kept, in a K.json): millimetres from the sheet's three

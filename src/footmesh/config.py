@@ -262,6 +262,12 @@ class MeasureConfig:
     """A foot must cover at least this fraction of the photo."""
     second_foot_ratio: float = 0.35
     """A second region at least this large relative to the foot means two feet."""
+    second_look_ratio: float | None = 0.15
+    """A smaller second region, at least this large relative to the foot, is looked at closer, and is a second
+    foot where that look's silhouette (cut to its joints) is ``second_foot_ratio`` of the first foot's: looking
+    down at both feet, the near foot's region takes in its shin (``../shared/real/rafiansyah`` ``64_49``: the far
+    foot's region 0.31 of it, its silhouette 0.65 of the near one's). On rafiansyah that photo alone changed (its
+    far foot found), and no render of ``eval measure`` (410, the sets ``reframe_below`` names). None: no."""
     first_look_zoom: int = 2
     """Where no look at the whole photo finds a foot region, a last look runs the network at this many times its
     own image side (a small, far foot: at 128 px a foot 60 px long in a 640-px photo is 12 px)."""

@@ -142,12 +142,12 @@ def locate_feet(
     rgb: np.ndarray | None, depth: np.ndarray | None, K: np.ndarray, kind: str, config: MeasureConfig
 ) -> list[Located]:
     """Find the feet, largest first (one, or two when a second region is at least ``config.second_foot_ratio``
-    of the first): cues on the whole photo (padded square; with RGB-D, where its network finds no foot there, the
-    RGB network's), then again on a square crop around each region framed like the training images (the foot's
-    longer side ``config.crop_fill`` of the crop; once more framed on the foot found where it filled far less:
-    ``_located_in``), the silhouette then cut to where that crop's joints say the foot
-    can be (``cues.trim``) and snapped to the photo's edges (or, with a depth map alone, to those of the height
-    above the floor; K (3, 3))."""
+    of the first, or its foot, cut to its joints, of the first foot: ``config.second_look_ratio``): cues on the
+    whole photo (padded square; with RGB-D, where its network finds no foot there, the RGB network's), then again
+    on a square crop around each region framed like the training images (the foot's longer side
+    ``config.crop_fill`` of the crop; once more framed on the foot found where it filled far less:
+    ``_located_in``), the silhouette then cut to where that crop's joints say the foot can be (``cues.trim``) and
+    snapped to the photo's edges (or, with a depth map alone, to those of the height above the floor; K (3, 3))."""
     ref = rgb if rgb is not None else depth
     h, w = ref.shape[:2]
     for look, zoom in _first_looks(kind, rgb is not None, config.first_look_zoom):
@@ -161,12 +161,19 @@ def locate_feet(
     if zoom == 1 and config.wider_look_window is not None:
         stats, areas, seen = _wider_where_better(look, rgb, depth, K, kind, config, stats, areas)
     order = np.argsort(areas)[::-1]
-    regions = [1 + order[0]]
+    regions, small_second = [1 + order[0]], None
     if len(order) > 1 and areas[order[1]] >= config.second_foot_ratio * areas[order[0]]:
         regions.append(1 + order[1])
+    elif len(order) > 1 and config.second_look_ratio is not None:
+        if areas[order[1]] >= config.second_look_ratio * areas[order[0]]:
+            regions.append(small_second := 1 + order[1])
     feet, boxes = [], []
     for region in regions:
         located = seen[region] if region in seen else _located_in(rgb, depth, K, kind, config, stats[region, :4])
+        if region == small_second and located is not None and feet:
+            # the regions took in the shins: the feet, cut to their joints, are compared instead
+            if located.mask.sum() < config.second_foot_ratio * feet[0].mask.sum():
+                continue
         # the second region's crop may show the first foot again (its joints, and so its silhouette, on it)
         if located is not None and not any(
             _same_foot(located.cues, foot.cues, config.same_foot_joints) for foot in feet
