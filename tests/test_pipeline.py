@@ -884,6 +884,25 @@ def test_two_real_feet_standing_touching_are_one_region_whose_halves_are_a_left_
     assert len(locate_feet(upright, None, None, "rgb", MeasureConfig(two_feet_min_probability=None))) == 1
 
 
+def _upright_real_photo(name: str) -> tuple[np.ndarray, np.ndarray]:
+    """A rafiansyah photo at the pipeline's working size, turned 180 deg so that the legs rise up the picture as
+    the networks learnt, and its hand-drawn feet (H, W) turned alike (0 none, 1 left, 2 right)."""
+    rgb = cv2.cvtColor(cv2.imread(str(RAFIANSYAH / "photos" / name)), cv2.COLOR_BGR2RGB)
+    drawn = cv2.imread(str(RAFIANSYAH / "masks" / Path(name).with_suffix(".png")), cv2.IMREAD_GRAYSCALE)
+    working = MeasureConfig().rgb_working_max_side / max(rgb.shape[:2])
+    upright = cv2.resize(
+        np.ascontiguousarray(rgb[::-1, ::-1]), None, fx=working, fy=working, interpolation=cv2.INTER_AREA
+    )
+    drawn = np.ascontiguousarray(drawn[::-1, ::-1])
+    return upright, cv2.resize(drawn, upright.shape[1::-1], interpolation=cv2.INTER_NEAREST)
+
+
+def _joints_on_drawn_feet(cues: Cues, drawn: np.ndarray) -> np.ndarray:
+    """How many of the located foot's joints lie on each drawn foot (2,): left, right."""
+    x, y = np.rint(cues.joints2d_px).astype(int).T
+    return np.bincount(drawn[y.clip(0, drawn.shape[0] - 1), x.clip(0, drawn.shape[1] - 1)], minlength=3)[1:]
+
+
 def test_a_real_foot_the_first_look_framed_with_the_shins_is_looked_at_again_closer():
     """A real photo looking down at one's own feet (``../shared/real/rafiansyah``, feet drawn by hand), turned so
     that the legs rise up the picture: the first look takes shins and feet for one region, whose crop shows the
@@ -892,25 +911,12 @@ def test_a_real_foot_the_first_look_framed_with_the_shins_is_looked_at_again_clo
     every joint lies on that foot, placed far more surely."""
     from footmesh.pipeline import locate_feet
 
-    name = "54_55cm_26-May-2023-09_16_02.jpg"
-    rgb = cv2.cvtColor(cv2.imread(str(RAFIANSYAH / "photos" / name)), cv2.COLOR_BGR2RGB)
-    drawn = cv2.imread(str(RAFIANSYAH / "masks" / Path(name).with_suffix(".png")), cv2.IMREAD_GRAYSCALE)
-    working = MeasureConfig().rgb_working_max_side / max(rgb.shape[:2])
-    upright = np.ascontiguousarray(rgb[::-1, ::-1])  # the legs rising up the picture, as the networks learnt
-    upright = cv2.resize(upright, None, fx=working, fy=working, interpolation=cv2.INTER_AREA)
-    drawn = cv2.resize(drawn[::-1, ::-1], upright.shape[1::-1], interpolation=cv2.INTER_NEAREST)
-
-    def on_one_foot(config: MeasureConfig) -> tuple[int, float]:
-        """The most joints of the largest located foot on any one drawn foot, and their mean confidence."""
-        cues = locate_feet(upright, None, None, "rgb", config)[0].cues
-        x, y = np.rint(cues.joints2d_px).astype(int).T
-        labels = drawn[y.clip(0, drawn.shape[0] - 1), x.clip(0, drawn.shape[1] - 1)]
-        return int(np.bincount(labels, minlength=3)[1:].max()), float(cues.joint_confidence.mean())
-
-    closer, confidence = on_one_foot(MeasureConfig())
-    framed_wide, confidence_wide = on_one_foot(MeasureConfig(reframe_below=None))
-    assert closer == 18 and framed_wide <= 9
-    assert confidence > confidence_wide + 0.2
+    upright, drawn = _upright_real_photo("54_55cm_26-May-2023-09_16_02.jpg")
+    closer = locate_feet(upright, None, None, "rgb", MeasureConfig())[0].cues
+    framed_wide = locate_feet(upright, None, None, "rgb", MeasureConfig(reframe_below=None))[0].cues
+    assert _joints_on_drawn_feet(closer, drawn).max() == 18
+    assert _joints_on_drawn_feet(framed_wide, drawn).max() <= 9
+    assert closer.joint_confidence.mean() > framed_wide.joint_confidence.mean() + 0.2
 
 
 def test_a_real_far_foot_smaller_than_the_near_foot_with_its_shin_is_found_as_the_second_foot():
@@ -921,23 +927,11 @@ def test_a_real_far_foot_smaller_than_the_near_foot_with_its_shin_is_found_as_th
     drawn foot."""
     from footmesh.pipeline import locate_feet
 
-    name = "64_49cm_28-May-2023-04_36_09.jpg"
-    rgb = cv2.cvtColor(cv2.imread(str(RAFIANSYAH / "photos" / name)), cv2.COLOR_BGR2RGB)
-    drawn = cv2.imread(str(RAFIANSYAH / "masks" / Path(name).with_suffix(".png")), cv2.IMREAD_GRAYSCALE)
-    working = MeasureConfig().rgb_working_max_side / max(rgb.shape[:2])
-    upright = np.ascontiguousarray(rgb[::-1, ::-1])  # the legs rising up the picture, as the networks learnt
-    upright = cv2.resize(upright, None, fx=working, fy=working, interpolation=cv2.INTER_AREA)
-    drawn = cv2.resize(drawn[::-1, ::-1], upright.shape[1::-1], interpolation=cv2.INTER_NEAREST)
+    upright, drawn = _upright_real_photo("64_49cm_28-May-2023-04_36_09.jpg")
     feet = locate_feet(upright, None, None, "rgb", MeasureConfig())
-    assert len(feet) == 2
-    on = []
-    for foot in feet:
-        x, y = np.rint(foot.cues.joints2d_px).astype(int).T
-        labels = drawn[y.clip(0, drawn.shape[0] - 1), x.clip(0, drawn.shape[1] - 1)]
-        counts = np.bincount(labels, minlength=3)[1:]
-        assert counts.max() >= 12  # most of its joints on one drawn foot
-        on.append(int(np.argmax(counts)))
-    assert sorted(on) == [0, 1]  # a foot each
+    on = [_joints_on_drawn_feet(foot.cues, drawn) for foot in feet]
+    assert len(feet) == 2 and all(counts.max() >= 12 for counts in on)  # most of each foot's joints on one foot
+    assert sorted(int(np.argmax(counts)) for counts in on) == [0, 1]  # a drawn foot each
     assert len(locate_feet(upright, None, None, "rgb", MeasureConfig(second_look_ratio=None))) == 1
 
 
