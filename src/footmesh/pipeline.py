@@ -318,8 +318,7 @@ def _located_in(rgb, depth, K, kind: str, config: MeasureConfig, box: np.ndarray
 
 def _mask_box(mask: np.ndarray) -> np.ndarray:
     """The box (x, y, w, h px) around a non-empty (H, W) bool mask."""
-    ys, xs = np.nonzero(mask)
-    return np.array([xs.min(), ys.min(), xs.max() - xs.min() + 1, ys.max() - ys.min() + 1])
+    return np.array(cv2.boundingRect(mask.astype(np.uint8)))
 
 
 def _boxes_seen_in(located: Located, box: np.ndarray, config: MeasureConfig) -> list[np.ndarray]:
