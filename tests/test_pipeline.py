@@ -839,6 +839,33 @@ def test_a_real_photo_whose_shin_upright_is_the_largest_foot_is_read_turned_wher
 
 
 @pytest.mark.slow
+@pytest.mark.parametrize("name", ["77_79cm_17-May-2023-12_08_18.jpg", "77_84cm_17-May-2023-12_08_18.jpg"])
+def test_a_real_photo_whose_shin_upright_reads_as_an_upright_foot_is_read_turned_where_a_foot_is_surer(tmp_path, name):
+    """Real photos (``../shared/real/rafiansyah``) looking down at one's own feet, far and small beyond the shins:
+    upright, the networks took a shin for a foot standing the right way up (leg angle 12-17 deg, joint confidence
+    0.16-0.21), so no upside-down rule turned the photo, and no measured foot lay on a foot; turned 180 deg they
+    place a foot's joints surely (0.53-0.58, ``MeasureConfig.upside_down_min_confidence_gain`` compares the two
+    looks' surest feet whichever way up the upright one reads), and a measured foot lies on a hand-drawn foot."""
+    drawn_feet = cv2.imread(str(RAFIANSYAH / "masks" / Path(name).with_suffix(".png")), cv2.IMREAD_GRAYSCALE) > 0
+
+    def on_a_foot(out: Path) -> bool:
+        result = measure_photo(RAFIANSYAH / "photos" / name, out, config=config)
+        masks = [foot["files"]["mask_png"] for foot in result.get("feet", []) if foot["measured"]] or ["mask.png"]
+        on = [(mask & drawn_feet).sum() / mask.sum() for mask in (_read_mask(out / m) for m in masks)]
+        return max(on) > 0.5
+
+    config = MeasureConfig()
+    assert on_a_foot(tmp_path / "turned")
+    config = MeasureConfig(upside_down_min_confidence_gain=None)
+    assert not on_a_foot(tmp_path / "upright")
+
+
+def _read_mask(path: Path) -> np.ndarray:
+    """A ``mask.png`` as (H, W) bool."""
+    return cv2.imread(str(path), cv2.IMREAD_GRAYSCALE) > 0
+
+
+@pytest.mark.slow
 def test_an_unscaled_photo_of_a_foot_and_a_foot_like_object_keeps_the_foot_the_networks_are_surer_of(tmp_path):
     """A real photo (``../shared/real/rafiansyah``, one foot drawn) of one foot and a phone charger on the floor,
     both measured unscaled as feet: the result's own keys (``mask.png``) are the foot's, whose joints the networks

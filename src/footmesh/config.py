@@ -345,15 +345,17 @@ class MeasureConfig:
     shins (located-foot IoU 0.418 -> 0.620). None: never turned by this angle (``upside_down_min_confidence_gain``
     may still turn it)."""
     upside_down_min_confidence_gain: float | None = 0.25
-    """Where no floor tells which way up the photo is and the largest foot's ankle lies below its toe tips (leg
-    angle over 90 deg) but the rule above does not turn it (the angle under ``upside_down_deg``, or the turned
-    look finds no foot where the upright one's largest lay: a shin taken for a foot), the feet are still taken
-    from the photo turned 180 deg where that look's largest foot, its ankle below the toes there too, has joints
-    placed with a mean confidence at least this much above the upright look's largest foot's: the networks place
-    the joints of feet they see as they learnt them more surely. On 180 upright renders (``eval measure``'s guided,
-    front and ood views, 60 each, seed 4242) the turned look was at most 0.17 surer (37 with the ankle below the
-    toes); on the 80 real photos looking down at one's own feet (``../shared/real/rafiansyah``, the networks' leg
-    angle 145-180 deg) 0.21 surer in the median. None: confidence never turns a photo."""
+    """Where no floor tells which way up the photo is and the rule above does not turn it (the largest foot's
+    ankle below its toe tips by less than ``upside_down_deg``, or the turned look finds no foot where the upright
+    one's largest lay, or the upright look reads its largest foot the right way up: a shin taken for a foot), the
+    feet are still taken from the photo turned 180 deg where that look's surest foot, its ankle below the toes
+    back in the photo, has joints placed with a mean confidence at least this much above the upright look's
+    largest foot's: the networks place the joints of feet they see as they learnt them more surely. On 180 upright
+    renders (``eval measure``'s guided, front and ood views, 60 each, seed 4242) the turned look's largest foot was
+    at most 0.17 surer (37 with the ankle below the toes), and on 120 of them (40 each) its surest at most 0.17
+    too; on the 80 real photos looking down at one's own feet (``../shared/real/rafiansyah``, the networks' leg
+    angle 145-180 deg but for two shins read upright, 12-17 deg) 0.21 surer in the median. None: confidence never
+    turns a photo."""
     max_rgb_end_on: float = 0.643
     """RGB photos (no depth) are refused when the fitted foot's long axis points within acos(this) = 50 deg of the
     line of sight: its length is then foreshortened and poorly seen. ``benchmarks/bench_end_on.py`` (refusal off,

@@ -687,9 +687,10 @@ def turned_where_needed(
       (``MeasureConfig.straight_down_ankle_up``), where that look sees it there too;
     - without a floor that tells, the largest foot's ankle below its toes (``MeasureConfig.upside_down_deg``):
       every foot is taken from the photo turned 180 deg, where that look puts the ankle below the toes too
-      (photos looking down at one's own feet, the legs entering from the bottom), or where that look places its
-      largest foot's joints surer by ``MeasureConfig.upside_down_min_confidence_gain`` (the ankle below the toes
-      by less, or a shin upright taken for the largest foot);
+      (photos looking down at one's own feet, the legs entering from the bottom); and whichever way up the
+      upright look reads its largest foot, where the turned look's surest foot, its ankle below its toes in the
+      photo, has its joints placed surer than that largest foot by ``MeasureConfig.upside_down_min_confidence_gain``
+      (the ankle below the toes by less, or a shin taken for the largest foot, upside down or upright);
     - a foot past the photo's edge (``refusals.cut_off``): that foot from the first turn of
       ``MeasureConfig.turned_looks`` (or upright, for a foot of a turned look) that keeps it in view (a photo
       taken straight down or held sideways, the leg across the picture and the heel under the shin read as past
@@ -730,14 +731,16 @@ def turned_where_needed(
         return list(turned_feet(quarter_turns)) if match is not None and agrees(match.cues.joints2d_px) else None
 
     def surer_turned(quarter_turns: int, gain: float) -> list[Located] | None:
-        """The feet of the photo turned ``quarter_turns`` where its largest foot, its ankle below its toes back in
-        the photo (as the upright look saw it), has joints placed ``gain`` more confidently (mean) than the
-        upright look's largest foot; else None."""
+        """The feet of the photo turned ``quarter_turns`` where its surest foot (mean joint confidence), its ankle
+        below its toes back in the photo, has joints placed ``gain`` more confidently than the upright look's
+        largest foot; else None."""
         look = turned_feet(quarter_turns)
-        if not look or leg_angle_deg(look[0].cues.joints2d_px) <= 90.0:
+        if not look:
             return None
-        surer = look[0].cues.joint_confidence.mean() >= first.cues.joint_confidence.mean() + gain
-        return list(look) if surer else None
+        surest = max(look, key=_surety)
+        if leg_angle_deg(surest.cues.joints2d_px) <= 90.0:
+            return None
+        return list(look) if _surety(surest) >= _surety(first) + gain else None
 
     turned_look = None
     floor_turns = None if floor is None else floor_up_turns(first.mask, *floor, config)
@@ -746,10 +749,12 @@ def turned_where_needed(
     elif floor is not None and config.straight_down_ankle_up and seen_straight_down(first.mask, *floor, config):
         turns = ankle_up_turns(first.cues.joints2d_px)
         turned_look = agreeing(turns, lambda joints: ankle_up_turns(joints) == turns)
-    elif (leg_deg := leg_angle_deg(first.cues.joints2d_px)) > 90.0:
+    else:
+        leg_deg = leg_angle_deg(first.cues.joints2d_px)
         if config.upside_down_deg is not None and leg_deg > config.upside_down_deg:
             turned_look = agreeing(2, lambda joints: leg_angle_deg(joints) > 90.0)
         if turned_look is None and config.upside_down_min_confidence_gain is not None:
+            # also where the upright look sees its foot upright: a shin taken for a foot can read either way up
             turned_look = surer_turned(2, config.upside_down_min_confidence_gain)
     feet = turned_look or feet
     looks = []
@@ -767,6 +772,11 @@ def turned_where_needed(
                     break
         looks.append(foot)
     return list({id(foot): foot for foot in looks}.values())
+
+
+def _surety(located: Located) -> float:
+    """How surely the networks placed the foot's joints: their mean confidence."""
+    return float(located.cues.joint_confidence.mean())
 
 
 def _size_ratio(located: Located, other: Located) -> float:
