@@ -1084,7 +1084,13 @@ def _measure_located(
         )
 
     seen_reference = reference  # its floor's orientation stays evidence even if its scale is rejected below
+    held_flat = functools.cache(lambda: fitted(seen_reference, flat=True))
     fit, fitted_flat = fitted(reference), False
+    if reference is not None and config.flat_fit_cost_ratio is not None:
+        # a free fit may settle in a worse basin than a fit held upright on the floor finds (the leg hiding the
+        # heel lets it tip the foot): the held fit is taken where it matches the photo clearly better
+        if held_flat().loss < config.flat_fit_cost_ratio * fit.loss:
+            fit, fitted_flat = held_flat(), True
     length_mm = canonical_measures(fit.shape)[0] if fit.scaled else None
     if reference is None and (refusal := refusals.implausible_length(length_mm, config)) is not None:
         raise refusal
@@ -1097,10 +1103,10 @@ def _measure_located(
             return refusals.contradicted_reference(reference.kind, candidate_mm, candidate.quality, config, separation)
 
         contradicted = contradiction(fit)
-        if contradicted is not None and refusals.implausible_length(length_mm, config) is not None:
+        if contradicted is not None and not fitted_flat and refusals.implausible_length(length_mm, config) is not None:
             # a fit that went wrong is tried again before the object is: held flat on its floor (the leg hiding
             # the heel lets a fit tip the foot and shrink it)
-            flat = fitted(reference, flat=True)
+            flat = held_flat()
             if contradiction(flat) is None:
                 fit, fitted_flat, contradicted = flat, True, None
                 messages.append(
@@ -1132,7 +1138,7 @@ def _measure_located(
     ):
         # the fit lifted the foot off the floor the reference shows (as when the leg hides the heel): before
         # refusing, fit again held upright on it (the photo guide asks for the foot flat on the floor)
-        flat = fitted(reference, flat=True)
+        flat = held_flat()
         if refusals.fitted_foot(flat.quality, _end_on(flat), kind, config, floor, scaled=flat.scaled) is None:
             fit, fitted_flat = flat, True
             messages.append(
