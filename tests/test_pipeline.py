@@ -872,16 +872,15 @@ def test_a_real_photo_whose_shin_upright_reads_as_an_upright_foot_is_read_turned
     looks' surest feet whichever way up the upright one reads), and a measured foot lies on a hand-drawn foot."""
     drawn_feet = cv2.imread(str(RAFIANSYAH / "masks" / Path(name).with_suffix(".png")), cv2.IMREAD_GRAYSCALE) > 0
 
-    def on_a_foot(out: Path) -> bool:
+    def on_a_foot(out: Path, config: MeasureConfig) -> bool:
+        """Whether a measured foot's ``mask.png`` lies mostly on a hand-drawn foot."""
         result = measure_photo(RAFIANSYAH / "photos" / name, out, config=config)
         masks = [foot["files"]["mask_png"] for foot in result.get("feet", []) if foot["measured"]] or ["mask.png"]
         on = [(mask & drawn_feet).sum() / mask.sum() for mask in (_read_mask(out / m) for m in masks)]
         return max(on) > 0.5
 
-    config = MeasureConfig()
-    assert on_a_foot(tmp_path / "turned")
-    config = MeasureConfig(upside_down_min_confidence_gain=None)
-    assert not on_a_foot(tmp_path / "upright")
+    assert on_a_foot(tmp_path / "turned", MeasureConfig())
+    assert not on_a_foot(tmp_path / "upright", MeasureConfig(upside_down_min_confidence_gain=None))
 
 
 def _read_mask(path: Path) -> np.ndarray:

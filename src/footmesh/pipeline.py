@@ -295,7 +295,7 @@ def _wider_where_better(
         return stats, areas, {}
     first = _located_in(rgb, depth, K, kind, config, stats[first_region, :4])
     gain = config.wider_look_min_confidence_gain
-    if first is None or wide.cues.joint_confidence.mean() >= first.cues.joint_confidence.mean() + gain:
+    if first is None or _surety(wide) >= _surety(first) + gain:
         return wide_stats, wide_areas, {wide_region: wide}
     return stats, areas, {first_region: first}
 
@@ -311,7 +311,7 @@ def _located_in(rgb, depth, K, kind: str, config: MeasureConfig, box: np.ndarray
     if max(found[2:]) >= config.reframe_below * config.crop_fill * located.crop.side:
         return located
     closer = _look_in(rgb, depth, K, kind, config, found)
-    if closer is None or closer.cues.joint_confidence.mean() < located.cues.joint_confidence.mean():
+    if closer is None or _surety(closer) < _surety(located):
         return located
     return closer
 
@@ -967,7 +967,7 @@ def _both_feet(outcomes: list, reference, requested: str) -> tuple[MeasureResult
         u = u if u is not None else math.inf
         # unscaled, no uncertainty tells: the foot the networks place most surely (fit costs of feet of different
         # image sizes do not compare; a charger on the floor, fitted as a tiny foot, cost least)
-        surest = -float(located.cues.joint_confidence.mean())
+        surest = -_surety(located)
         return (requested != "auto" and result.side != requested, not result.scaled, u, surest, result.fit["loss"])
 
     primary = min(measured, key=rank)
