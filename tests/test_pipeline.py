@@ -795,6 +795,11 @@ def test_two_feet_touching_each_keep_the_pixels_nearer_their_own_joints(seed):
 RAFIANSYAH = Path(__file__).resolve().parents[1] / ".." / "shared" / "real" / "rafiansyah"
 
 
+def _read_mask(path: Path) -> np.ndarray:
+    """A ``mask.png`` as (H, W) bool."""
+    return cv2.imread(str(path), cv2.IMREAD_GRAYSCALE) > 0
+
+
 def _measured_real_photo(name: str, out: Path) -> tuple[dict, dict[str, np.ndarray], list[tuple[dict, np.ndarray]]]:
     """``measure_photo`` on a rafiansyah photo: its result, the hand-drawn feet by side ((H, W) bool each) and
     each measured foot's entry of ``feet`` with its ``mask.png`` ((H, W) bool)."""
@@ -802,11 +807,7 @@ def _measured_real_photo(name: str, out: Path) -> tuple[dict, dict[str, np.ndarr
 
     drawn = cv2.imread(str(RAFIANSYAH / "masks" / Path(name).with_suffix(".png")), cv2.IMREAD_GRAYSCALE)
     result = measure_photo(RAFIANSYAH / "photos" / name, out)
-    masks = [
-        (foot, cv2.imread(str(out / foot["files"]["mask_png"]), cv2.IMREAD_GRAYSCALE) > 0)
-        for foot in result.get("feet", [])
-        if foot["measured"]
-    ]
+    masks = [(foot, _read_mask(out / foot["files"]["mask_png"])) for foot in result.get("feet", []) if foot["measured"]]
     return result, {side: drawn == value for side, value in MASK_VALUE.items()}, masks
 
 
@@ -868,8 +869,9 @@ def test_a_real_photo_whose_shin_upright_reads_as_an_upright_foot_is_read_turned
     """Real photos (``../shared/real/rafiansyah``) looking down at one's own feet, far and small beyond the shins:
     upright, the networks took a shin for a foot standing the right way up (leg angle 12-17 deg, joint confidence
     0.16-0.21), so no upside-down rule turned the photo, and no measured foot lay on a foot; turned 180 deg they
-    place a foot's joints surely (0.53-0.58, ``MeasureConfig.upside_down_min_confidence_gain`` compares the two
-    looks' surest feet whichever way up the upright one reads), and a measured foot lies on a hand-drawn foot."""
+    place a foot's joints surely (0.53-0.58, ``MeasureConfig.upside_down_min_confidence_gain`` compares the turned
+    look's surest foot with the upright look's largest whichever way up that one reads), and a measured foot lies
+    on a hand-drawn foot."""
     drawn_feet = cv2.imread(str(RAFIANSYAH / "masks" / Path(name).with_suffix(".png")), cv2.IMREAD_GRAYSCALE) > 0
 
     def on_a_foot(out: Path, config: MeasureConfig) -> bool:
@@ -881,11 +883,6 @@ def test_a_real_photo_whose_shin_upright_reads_as_an_upright_foot_is_read_turned
 
     assert on_a_foot(tmp_path / "turned", MeasureConfig())
     assert not on_a_foot(tmp_path / "upright", MeasureConfig(upside_down_min_confidence_gain=None))
-
-
-def _read_mask(path: Path) -> np.ndarray:
-    """A ``mask.png`` as (H, W) bool."""
-    return cv2.imread(str(path), cv2.IMREAD_GRAYSCALE) > 0
 
 
 @pytest.mark.slow

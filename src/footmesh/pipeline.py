@@ -750,8 +750,7 @@ def turned_where_needed(
         turns = ankle_up_turns(first.cues.joints2d_px)
         turned_look = agreeing(turns, lambda joints: ankle_up_turns(joints) == turns)
     else:
-        leg_deg = leg_angle_deg(first.cues.joints2d_px)
-        if config.upside_down_deg is not None and leg_deg > config.upside_down_deg:
+        if config.upside_down_deg is not None and leg_angle_deg(first.cues.joints2d_px) > config.upside_down_deg:
             turned_look = agreeing(2, lambda joints: leg_angle_deg(joints) > 90.0)
         if turned_look is None and config.upside_down_min_confidence_gain is not None:
             # also where the upright look sees its foot upright: a shin taken for a foot can read either way up
@@ -1086,11 +1085,11 @@ def _measure_located(
     seen_reference = reference  # its floor's orientation stays evidence even if its scale is rejected below
     held_flat = functools.cache(lambda: fitted(seen_reference, flat=True))
     fit, fitted_flat = fitted(reference), False
-    if reference is not None and config.flat_fit_cost_ratio is not None:
-        # a free fit may settle in a worse basin than a fit held upright on the floor finds (the leg hiding the
-        # heel lets it tip the foot): the held fit is taken where it matches the photo clearly better
-        if held_flat().loss < config.flat_fit_cost_ratio * fit.loss:
-            fit, fitted_flat = held_flat(), True
+    # a free fit may settle in a worse basin than a fit held upright on the floor finds (the leg hiding the heel
+    # lets it tip the foot): the held fit is taken where it matches the photo clearly better
+    ratio = config.flat_fit_cost_ratio
+    if reference is not None and ratio is not None and held_flat().loss < ratio * fit.loss:
+        fit, fitted_flat = held_flat(), True
     length_mm = canonical_measures(fit.shape)[0] if fit.scaled else None
     if reference is None and (refusal := refusals.implausible_length(length_mm, config)) is not None:
         raise refusal
