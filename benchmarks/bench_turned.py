@@ -10,7 +10,7 @@ answered, those with millimetres, the length MAE on those and how many were read
 
 Run: ``python benchmarks/bench_turned.py [--n 16] [--views front guided] [--seed 4242]``.
 Real photos beside it: ``footmesh eval real --set ../shared/real/rafiansyah --measure`` (first-person photos,
-the legs from the bottom; README).
+the legs from the bottom; docs/results-history.md).
 """
 
 from __future__ import annotations

@@ -124,7 +124,7 @@ REAL_A4 = Path(__file__).resolve().parents[1] / ".." / "shared" / "real" / "a4" 
 LENGTH_TOLERANCE_MM = {"a4_left": 10.0, "depth_right": 15.0, "card_right": 15.0}
 """Per bundled photo, the measured length must lie within this of the truth and within 2.5 of its own
 uncertainties: a regression guard (today: -1.1, -1.9, -4.7 mm); the accuracy itself is measured by
-``footmesh eval measure`` (README)."""
+``footmesh eval measure`` (docs/results-history.md)."""
 
 
 @pytest.fixture(scope="module")

@@ -452,11 +452,11 @@ class MeasureConfig:
     """With a depth map, fit the foot standing on the floor plane the depth shows around it (``cues.floor``),
     as with a reference object's floor. ``eval measure`` (seed 4242), length MAE without -> with: RGB-D front views
     (the heel behind the shin, 30) 3.51 -> 3.00 mm, guided (60) 1.52 -> 1.20; depth alone front 3.92 -> 2.44 but
-    guided 1.72 -> 2.03 (README)."""
+    guided 1.72 -> 2.03 (docs/results-history.md)."""
     rgbd_with_depth_network: bool = True
     """With RGB-D, average the RGB-D network's cues with the depth network's (``cues.predict.average_cues``):
     on 20 guided RGB-D photos the RGB-D cues alone gave length / width MAE 4.06 / 1.75 mm, the depth network's
-    2.92 / 2.06 mm (measured with ``footmesh eval measure --views guided``; the average: README)."""
+    2.92 / 2.06 mm (measured with ``footmesh eval measure --views guided``; the average: docs/results-history.md)."""
     focal_prior_log_sd: dict[str, float] = field(default_factory=lambda: {"file": 0.0, "exif": 0.1, "default": 0.7})
     """How well the photo's focal length is known, by ``Intrinsics.source`` (SD of its log; 0 = held): with a
     sheet or marker in view, the focal length its perspective gives (``cues.reference.focal``) is weighed
@@ -488,7 +488,8 @@ class MeasureConfig:
     ``footmesh eval measure --modes rgb_ref``, length MAE before -> after: guided 4242 (60) 3.46 -> 3.06 mm, front
     4242 (60) 6.62 -> 6.18, random (40) 13.05 -> 11.40, ood (60) 14.15 -> 13.71, and on the held-out seed 777 (40)
     guided 5.03 -> 4.76, front 7.11 -> 6.84. Between 0.8 and 0.9 the held fit was no better than the free one on
-    renders (README), and a real photo's length moved 26 mm there. None: held only to retry a fit that went wrong."""
+    renders (docs/results-history.md), and a real photo's length moved 26 mm there. None: held only to retry a fit
+    that went wrong."""
     max_reference_separation: float = 3.0
     """A reference object is put beside the foot (the photo guide; the renders place it 110-460 mm from the foot's
     centre): one whose floor puts the fitted foot's centre more than this many foot lengths from the object's is
@@ -504,7 +505,7 @@ class MeasureConfig:
     |error| / uncertainty over length and ball width on ``footmesh eval measure --views guided --seed 777 --n 60``
     (0.879 over 224 depth errors, RGB-D and depth alone: 1.04 -> 0.91; 0.888 over 114 with a reference object:
     1.56 -> 1.39; re-measured with the fine-tuned 2D-cues networks), so that about 68 % of true errors fall within
-    one uncertainty; checked on the seed-4242 photos in the README. With the cost's variance factor
+    one uncertainty; checked on the seed-4242 photos in docs/results-history.md. With the cost's variance factor
     (``uncertainty_loss_reference``, 2026-12-06): 0.968 over 114 with a reference object, 1.39 -> 1.35; 0.880 over
     226 depth errors (RGB-D 0.867, depth alone 0.888; RGB-D alone was 0.854 before the variance factor too: the
     factor had drifted since it was set), 0.91 -> 0.80."""
