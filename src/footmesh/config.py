@@ -490,6 +490,19 @@ class MeasureConfig:
     guided 5.03 -> 4.76, front 7.11 -> 6.84. Between 0.8 and 0.9 the held fit was no better than the free one on
     renders (docs/results-history.md), and a real photo's length moved 26 mm there. None: held only to retry a fit
     that went wrong."""
+    standing_max_side_cos: float | None = 0.25
+    """With a reference object, a foot whose fit is seen from its front, its back or above (the line of sight to its
+    midfoot within acos(this) = 75.5 deg of square to its lateral axis: the profile of its sole out of sight) is
+    also fitted standing on the reference's floor: upright, its heel and its ball on the floor
+    (``FitConfig.sole_contact``), as a person standing on a sheet for the photo does. Such a photo cannot show
+    whether the heel or the ball is lifted, and a fit free to lift one tips the foot along the line of sight: on
+    the seven real A4 photos the fits stood their toe tips 40-130 mm or their heels 55-145 mm above the sheet.
+    ``footmesh eval measure --modes rgb_ref``, length MAE: front 4242 6.18 -> 5.95 mm, front 777 6.84 -> 6.20,
+    guided 4242 and 777 unchanged (side views), random 11.40 -> 11.54, ood 13.71 -> 13.05 (docs/measure.md step
+    4). None: never."""
+    standing_max_cost_ratio: float = 1.5
+    """... and that fit is taken unless its final cost is above this many times the other's: where holding the
+    foot down explains the photo far worse, it was not standing (feet lifted off the floor cost 3-8x more)."""
     max_reference_separation: float = 3.0
     """A reference object is put beside the foot (the photo guide; the renders place it 110-460 mm from the foot's
     centre): one whose floor puts the fitted foot's centre more than this many foot lengths from the object's is

@@ -895,6 +895,13 @@ def _end_on(fit) -> float:
     return abs(float(axis @ centre)) / float(np.linalg.norm(centre))
 
 
+def _side_cos(fit) -> float:
+    """|cos| of the angle between the line of sight to a fitted foot's midfoot and the foot's lateral axis: 0 seen
+    from its front, its back or above (the profile of its sole out of sight), 1 seen square from its side."""
+    sight = fit.joints_cam[0] / np.linalg.norm(fit.joints_cam[0])
+    return float(abs(fit.cam_from_foot[:3, 1] @ sight))
+
+
 def floor_end_on_bound(mask: np.ndarray, K: np.ndarray, cam_from_floor: np.ndarray) -> float:
     """The largest |cos| between the line of sight to the silhouette's centre and any direction in the floor
     plane: how end-on a foot lying on this floor can be seen at most (0 looking straight down, 1 along it)."""
@@ -1066,12 +1073,15 @@ def _measure_located(
         if max(residuals.values()) >= config.decoder_side_ratio * residuals[nearer]:
             side, side_source = nearer, "decoder"  # told plainly: the other side's fit is not needed
 
-    def fitted(on: ReferenceObject | None, flat: bool = False):
+    def fitted(on: ReferenceObject | None, hold: str | None = None):
         """The fit on the floor of the reference ``on`` (with the camera its pose was solved with), or on none;
-        ``flat``: held upright on that floor (``MeasureConfig.flat_refit_upright_robust``)."""
+        ``hold``: "upright", held upright on that floor (``MeasureConfig.flat_refit_upright_robust``), or
+        "standing", held upright and bearing weight on it (its heel and its ball on it: ``FitConfig.sole_contact``)."""
         fit_config = FitConfig(joint_sigma_px=joint_sigma_px(located.crop.side, config))
-        if flat:
-            fit_config = replace(fit_config, upright_robust=config.flat_refit_upright_robust)
+        if hold is not None:
+            fit_config = replace(
+                fit_config, upright_robust=config.flat_refit_upright_robust, sole_contact=hold == "standing"
+            )
         return fit_foot(
             located.cues,
             K if on is None else on.K,
@@ -1083,13 +1093,24 @@ def _measure_located(
         )
 
     seen_reference = reference  # its floor's orientation stays evidence even if its scale is rejected below
-    held_flat = functools.cache(lambda: fitted(seen_reference, flat=True))
-    fit, fitted_flat = fitted(reference), False
+    held_flat = functools.cache(lambda: fitted(seen_reference, "upright"))
+    fit, hold = fitted(reference), None
     # a free fit may settle in a worse basin than a fit held upright on the floor finds (the leg hiding the heel
     # lets it tip the foot): the held fit is taken where it matches the photo clearly better
     ratio = config.flat_fit_cost_ratio
     if reference is not None and ratio is not None and held_flat().loss < ratio * fit.loss:
-        fit, fitted_flat = held_flat(), True
+        fit, hold = held_flat(), "upright"
+    if (
+        reference is not None
+        and config.standing_max_side_cos is not None
+        and _side_cos(fit) < config.standing_max_side_cos
+    ):
+        # seen from the front, the back or above, the photo does not show whether the heel and the ball rest on
+        # the floor, and a fit free to lift either tips the foot along the line of sight: one standing on it is
+        # taken unless it explains the photo far worse
+        standing = fitted(reference, "standing")
+        if standing.loss <= config.standing_max_cost_ratio * fit.loss:
+            fit, hold = standing, "standing"
     length_mm = canonical_measures(fit.shape)[0] if fit.scaled else None
     if reference is None and (refusal := refusals.implausible_length(length_mm, config)) is not None:
         raise refusal
@@ -1102,12 +1123,12 @@ def _measure_located(
             return refusals.contradicted_reference(reference.kind, candidate_mm, candidate.quality, config, separation)
 
         contradicted = contradiction(fit)
-        if contradicted is not None and not fitted_flat and refusals.implausible_length(length_mm, config) is not None:
+        if contradicted is not None and hold is None and refusals.implausible_length(length_mm, config) is not None:
             # a fit that went wrong is tried again before the object is: held flat on its floor (the leg hiding
             # the heel lets a fit tip the foot and shrink it)
             flat = held_flat()
             if contradiction(flat) is None:
-                fit, fitted_flat, contradicted = flat, True, None
+                fit, hold, contradicted = flat, "upright", None
                 messages.append(
                     f"the foot was fitted lying flat on the floor that {references.kind(reference.kind).described} "
                     "shows (a first fit made it no adult's length: the heel may be hidden behind the leg)"
@@ -1132,14 +1153,14 @@ def _measure_located(
     if (
         reference is not None
         and floor is not None
-        and not fitted_flat
+        and hold is None
         and refusals.heel_hidden(_end_on(fit), floor[1], floor[0], config)
     ):
         # the fit lifted the foot off the floor the reference shows (as when the leg hides the heel): before
         # refusing, fit again held upright on it (the photo guide asks for the foot flat on the floor)
         flat = held_flat()
         if refusals.fitted_foot(flat.quality, _end_on(flat), kind, config, floor, scaled=flat.scaled) is None:
-            fit, fitted_flat = flat, True
+            fit, hold = flat, "upright"
             messages.append(
                 f"the foot was fitted lying flat on the floor that {references.kind(reference.kind).described} shows "
                 "(a first fit lifted it off that floor: the heel may be hidden behind the leg); for the best figures "
@@ -1162,7 +1183,7 @@ def _measure_located(
     if fit.scaled:
         focal_effect = None
         if reference is not None and reference.focal_log_sd >= config.focal_uncertainty_min_log_sd:
-            focal_effect = _focal_effect_mm(reference, measured, lambda on: fitted(on, flat=fitted_flat), model)
+            focal_effect = _focal_effect_mm(reference, measured, lambda on: fitted(on, hold), model)
         measured = measured.with_uncertainties(
             measurement_uncertainty(fit, measured, scale_source, reference, model, config, focal_effect)
         )

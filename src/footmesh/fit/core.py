@@ -18,6 +18,8 @@ free_space      camera-facing vertices must not lie in front of the nearest meas
                 (Huber)
 floor_contact   the lowest vertex touches the floor plane, mm (Geman-McClure above the floor: a foot clearly
                 lifted is let go; least squares below it: nothing goes through the floor)
+sole_contact    only with ``FitConfig.sole_contact``: the lowest vertices of the heel and of the ball touch the floor
+                (a foot bearing weight), mm (least squares)
 upright         the foot's z axis along the floor normal (a standing foot), radians (Geman-McClure)
 camera_above    the camera is above the foot's sole plane (no floor, no depth: removes the mirror-in-depth twin)
 distance        no scale evidence: the midfoot stays at the distance of the mean-size foot (``scaled=False``)
@@ -72,7 +74,7 @@ from footmesh.fit import terms
 from footmesh.geometry.alignment import weighted_procrustes
 from footmesh.geometry.camera import pixel_rays, project, unproject
 from footmesh.geometry.rotations import skew
-from footmesh.model import lbs
+from footmesh.model import anatomy, lbs
 from footmesh.model import skeleton as sk
 from footmesh.model.ik import natural_pose_moments
 from footmesh.model.layer import FootModel, default_model
@@ -170,6 +172,8 @@ class FitConfig:
     """Geman-McClure scale of the contact term, in sigmas: a foot clearly off the floor is let go."""
     upright_sigma_rad: float = 0.05
     upright_robust: float = 3.0
+    sole_contact: bool = False
+    """True: the foot bears weight on the floor (``terms.SoleContact``): its heel and its ball both touch it."""
     camera_above_sigma_mm: float = 10.0
     distance_sigma_mm: float = 0.5
     shape_prior_weight: float = 1.0
@@ -367,6 +371,7 @@ class _ModelArrays:
     joint_basis: torch.Tensor  # (K, 18, 3) joint_regressor @ (sd_k component_k)
     rest_normals: torch.Tensor  # (V, 3) unit normals of the mean rest foot (left)
     cap: np.ndarray  # (C,) vertex ids of the ankle cap, where the leg joins the foot
+    sole: tuple[np.ndarray, np.ndarray]  # vertex ids of the heel and the ball, where a standing foot bears weight
 
     @property
     def num_shape(self) -> int:
@@ -416,6 +421,7 @@ def _model_arrays(model: FootModel, num_vertices: int) -> _ModelArrays:
         joint_basis=torch.einsum("jv,kvc->kjc", jreg, comps * sd[:, None, None]),
         rest_normals=torch.from_numpy(normals),
         cap=np.flatnonzero((mean_np[:, 2] > CAP_MIN_HEIGHT_MM) & (normals[:, 2] > CAP_NORMAL_Z)),
+        sole=(anatomy.heel_region(mean_np), anatomy.ball_region(mean_np)),
     )
 
 

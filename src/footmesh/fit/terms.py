@@ -289,6 +289,31 @@ class FloorContact(Term):
         return (out["vertices"][:, b["index"]] @ plane[:3] + plane[3]) / problem.config.floor_sigma_mm
 
 
+class SoleContact(Term):
+    """A foot bearing weight (``FitConfig.sole_contact``): the lowest vertex of its heel and that of its ball each
+    touch the floor plane, mm (least squares: a standing foot is neither on tiptoe nor rocked onto its heel)."""
+
+    name = "sole_contact"
+
+    def associate(self, problem, frame):
+        floor = problem.ev.floor
+        if floor is None or not problem.config.sole_contact:
+            return None
+        height = frame.vertices @ floor[:3] + floor[3]
+        lowest = [region[np.argmin(height[region])] for region in problem.arrays.sole]
+        return {"extra": np.array(lowest), "scale": 1.0}
+
+    def place(self, block, position):
+        block["index"] = torch.from_numpy(position(block["extra"]))
+
+    def residual(self, problem, out, blocks):
+        if "sole_contact" not in blocks:
+            return None
+        plane = torch.from_numpy(problem.ev.floor)
+        b = blocks["sole_contact"]
+        return (out["vertices"][:, b["index"]] @ plane[:3] + plane[3]) / problem.config.floor_sigma_mm
+
+
 class Upright(Term):
     """The foot's z axis along the floor normal (a standing foot), radians (Geman-McClure)."""
 
@@ -360,6 +385,7 @@ TERMS: tuple[Term, ...] = (
     Depth(),
     FreeSpace(),
     FloorContact(),
+    SoleContact(),
     Upright(),
     CameraAbove(),
     Distance(),
