@@ -128,6 +128,23 @@ def test_floor_plane_gives_scale_to_a_plain_photo(floor_fits):
         assert abs(heights.min()) < 2.0
 
 
+def test_a_foot_fitted_bearing_weight_stands_on_its_heel_and_its_ball(scenes):
+    """``FitConfig.sole_contact``: the lowest points of the heel and of the ball both lie on the floor (a free fit
+    only puts its lowest vertex there), and the foot keeps its size within the floor fit's error."""
+    from footmesh.model import anatomy
+
+    sample = scenes[0]
+    cues = synthetic_cues(sample, joint_noise_px=3.0, rng=0)
+    fit = fit_foot(cues, sample["K"], cam_from_floor=sample["cam_from_scene"], config=FitConfig(sole_contact=True))
+    floor_from_cam = np.linalg.inv(sample["cam_from_scene"])
+    heights = fit.vertices_cam @ floor_from_cam[2, :3] + floor_from_cam[2, 3]
+    rest = default_model().mean_vertices.numpy()
+    for region in (anatomy.heel_region(rest), anatomy.ball_region(rest)):
+        assert abs(heights[region].min()) < 2.0
+    assert "sole_contact" in fit.loss_terms
+    assert abs(canonical_measures(fit.shape)[0] - canonical_measures(sample["shape"])[0]) < 12.0
+
+
 def test_without_scale_evidence_the_fit_is_unscaled_but_keeps_proportions(bare_fits):
     _, _, ratio = _errors(bare_fits)
     for _, fit in bare_fits:

@@ -17,7 +17,7 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Literal
 
 import cv2
 import numpy as np
@@ -1073,7 +1073,7 @@ def _measure_located(
         if max(residuals.values()) >= config.decoder_side_ratio * residuals[nearer]:
             side, side_source = nearer, "decoder"  # told plainly: the other side's fit is not needed
 
-    def fitted(on: ReferenceObject | None, hold: str | None = None):
+    def fitted(on: ReferenceObject | None, hold: Literal["upright", "standing"] | None = None):
         """The fit on the floor of the reference ``on`` (with the camera its pose was solved with), or on none;
         ``hold``: "upright", held upright on that floor (``MeasureConfig.flat_refit_upright_robust``), or
         "standing", held upright and bearing weight on it (its heel and its ball on it: ``FitConfig.sole_contact``)."""

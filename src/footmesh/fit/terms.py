@@ -282,14 +282,13 @@ class FloorContact(Term):
         return "gm_above", config.floor_robust
 
     def residual(self, problem, out, blocks):
-        if problem.ev.floor is None:
+        if self.name not in blocks:
             return None
         plane = torch.from_numpy(problem.ev.floor)
-        b = blocks["floor_contact"]
-        return (out["vertices"][:, b["index"]] @ plane[:3] + plane[3]) / problem.config.floor_sigma_mm
+        return (out["vertices"][:, blocks[self.name]["index"]] @ plane[:3] + plane[3]) / problem.config.floor_sigma_mm
 
 
-class SoleContact(Term):
+class SoleContact(FloorContact):
     """A foot bearing weight (``FitConfig.sole_contact``): the lowest vertex of its heel and that of its ball each
     touch the floor plane, mm (least squares: a standing foot is neither on tiptoe nor rocked onto its heel)."""
 
@@ -303,15 +302,8 @@ class SoleContact(Term):
         lowest = [region[np.argmin(height[region])] for region in problem.arrays.sole]
         return {"extra": np.array(lowest), "scale": 1.0}
 
-    def place(self, block, position):
-        block["index"] = torch.from_numpy(position(block["extra"]))
-
-    def residual(self, problem, out, blocks):
-        if "sole_contact" not in blocks:
-            return None
-        plane = torch.from_numpy(problem.ev.floor)
-        b = blocks["sole_contact"]
-        return (out["vertices"][:, b["index"]] @ plane[:3] + plane[3]) / problem.config.floor_sigma_mm
+    def kernel(self, config):
+        return "l2", 0.0
 
 
 class Upright(Term):
