@@ -220,18 +220,24 @@ def test_a_fit_of_no_adults_length_on_a_sheet_is_fitted_again_flat_before_the_sh
     assert not any("so it was ignored" in m for m in result["messages"])
 
 
+def _eval_render_on_a4(views: str, index: int, folder: Path) -> tuple[dict, float]:
+    """``eval measure``'s RGB + A4 render ``index`` of the view set ``views`` (seed 4242), written as the files a user
+    gives, and its true stick length (mm)."""
+    from footmesh.eval.measure import EVAL_SEED, true_measurements
+    from footmesh.synth.render import Renderer
+    from footmesh.synth.scene import view_config
+
+    sample = Renderer(view_config(views, size=640, reference="a4")).render(EVAL_SEED, index)
+    truth = true_measurements(sample["shape"], "right" if int(sample["side"]) else "left")["stick_length"]
+    return write_inputs(sample, folder, with_depth=False), truth
+
+
 @pytest.mark.slow
 def test_a_free_fit_settled_in_a_worse_basin_gives_way_to_the_fit_held_upright_on_the_sheets_floor(tmp_path):
     """A guided render on an A4 sheet (``eval measure``'s seed 4242, photo 42) whose free fit settles tipped at a
     cost of 19.7 and 10.3 mm short: held upright on the sheet's floor the fit costs 12.1, under
     ``MeasureConfig.flat_fit_cost_ratio`` of it, and is taken, about 1 mm off."""
-    from footmesh.eval.measure import EVAL_SEED, true_measurements
-    from footmesh.synth.render import Renderer
-    from footmesh.synth.scene import view_config
-
-    sample = Renderer(view_config("guided", size=640, reference="a4")).render(EVAL_SEED, 42)
-    paths = write_inputs(sample, tmp_path / "in", with_depth=False)
-    truth = true_measurements(sample["shape"], "right" if int(sample["side"]) else "left")["stick_length"]
+    paths, truth = _eval_render_on_a4("guided", 42, tmp_path / "in")
 
     def measured(config: MeasureConfig) -> dict:
         out = tmp_path / str(config.flat_fit_cost_ratio)
@@ -249,13 +255,7 @@ def test_a_foot_seen_from_the_front_is_measured_standing_on_the_sheets_floor(tmp
     4242, photo 12): the photo does not show whether the hidden heel rests on the sheet, and the fit tips the
     foot, 22 mm short. Fitted standing on the sheet's floor (heel and ball on it) at no higher cost, it is 11 mm
     short."""
-    from footmesh.eval.measure import EVAL_SEED, true_measurements
-    from footmesh.synth.render import Renderer
-    from footmesh.synth.scene import view_config
-
-    sample = Renderer(view_config("front", size=640, reference="a4")).render(EVAL_SEED, 12)
-    paths = write_inputs(sample, tmp_path / "in", with_depth=False)
-    truth = true_measurements(sample["shape"], "right" if int(sample["side"]) else "left")["stick_length"]
+    paths, truth = _eval_render_on_a4("front", 12, tmp_path / "in")
 
     def measured(config: MeasureConfig) -> dict:
         out = tmp_path / str(config.standing_max_side_cos)
