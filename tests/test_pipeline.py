@@ -263,6 +263,7 @@ def test_a_foot_seen_from_the_front_is_measured_standing_on_the_sheets_floor(tmp
 
     tipped, standing = measured(MeasureConfig(standing_max_side_cos=None)), measured(MeasureConfig())
     assert "sole_contact" in standing["fit"]["terms"] and "sole_contact" not in tipped["fit"]["terms"]
+    assert any("fitted standing on the floor that an A4 sheet" in m for m in standing["messages"])
     tipped_error, standing_error = (r["measurements"]["stick_length"]["value_mm"] - truth for r in (tipped, standing))
     assert -15.0 < standing_error < 0.0 and tipped_error < -20.0
 

@@ -1111,6 +1111,11 @@ def _measure_located(
         standing = fitted(reference, "standing")
         if standing.loss <= config.standing_max_cost_ratio * fit.loss:
             fit, hold = standing, "standing"
+            messages.append(
+                f"the foot was fitted standing on the floor that {references.kind(reference.kind).described} shows, "
+                "its heel and its ball on it: seen from the front, the back or above, a photo does not show whether "
+                "either is lifted"
+            )
     length_mm = canonical_measures(fit.shape)[0] if fit.scaled else None
     if reference is None and (refusal := refusals.implausible_length(length_mm, config)) is not None:
         raise refusal
