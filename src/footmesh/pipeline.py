@@ -1111,11 +1111,6 @@ def _measure_located(
         standing = fitted(reference, "standing")
         if standing.loss <= config.standing_max_cost_ratio * fit.loss:
             fit, hold = standing, "standing"
-            messages.append(
-                f"the foot was fitted standing on the floor that {references.kind(reference.kind).described} shows, "
-                "its heel and its ball on it: seen from the front, the back or above, a photo does not show whether "
-                "either is lifted"
-            )
     length_mm = canonical_measures(fit.shape)[0] if fit.scaled else None
     if reference is None and (refusal := refusals.implausible_length(length_mm, config)) is not None:
         raise refusal
@@ -1141,7 +1136,7 @@ def _measure_located(
         if contradicted is not None:
             messages.append(contradicted)
             reference = None
-            fit = fitted(None)
+            fit, hold = fitted(None), None
     # the reference's perspective may have corrected a guessed focal length: the camera the fit used
     photo_K, K = K, (K if reference is None else reference.K)
     if abs(K[0, 0] / photo_K[0, 0] - 1.0) > 0.05:
@@ -1171,6 +1166,12 @@ def _measure_located(
                 "(a first fit lifted it off that floor: the heel may be hidden behind the leg); for the best figures "
                 "photograph the foot from the side and above, with the heel in view"
             )
+    if hold == "standing":
+        messages.append(
+            f"the foot was fitted standing on the floor that {references.kind(reference.kind).described} shows, its "
+            "heel and its ball on it: seen from the front, the back or above, a photo does not show whether either is "
+            "lifted"
+        )
     timings["fit_s"] = time.perf_counter() - t
     refusal = refusals.fitted_foot(fit.quality, _end_on(fit), kind, config, floor, scaled=fit.scaled)
     if refusal is not None:
