@@ -888,18 +888,21 @@ def _off_the_paper(located: Located, rgb: np.ndarray, sheet_px: np.ndarray) -> L
     return replace(located, cues=replace(located.cues, silhouette=silhouette), mask=silhouette >= 0.5)
 
 
+def _sight_cos(fit, axis: int, point: np.ndarray) -> float:
+    """|cos| of the angle between the fitted foot's frame axis ``axis`` (0: heel to toe, 1: lateral) and the line of
+    sight to ``point`` (3,), camera frame."""
+    return abs(float(fit.cam_from_foot[:3, axis] @ point)) / float(np.linalg.norm(point))
+
+
 def _end_on(fit) -> float:
     """|cos| of the angle between the fitted foot's heel-to-toe axis and the line of sight to its centre."""
-    axis = fit.cam_from_foot[:3, 0]  # the foot's heel-to-toe direction in the camera frame
-    centre = fit.vertices_cam.mean(axis=0)
-    return abs(float(axis @ centre)) / float(np.linalg.norm(centre))
+    return _sight_cos(fit, 0, fit.vertices_cam.mean(axis=0))
 
 
 def _side_cos(fit) -> float:
     """|cos| of the angle between the line of sight to a fitted foot's midfoot and the foot's lateral axis: 0 seen
     from its front, its back or above (the profile of its sole out of sight), 1 seen square from its side."""
-    sight = fit.joints_cam[0] / np.linalg.norm(fit.joints_cam[0])
-    return float(abs(fit.cam_from_foot[:3, 1] @ sight))
+    return _sight_cos(fit, 1, fit.joints_cam[0])
 
 
 def floor_end_on_bound(mask: np.ndarray, K: np.ndarray, cam_from_floor: np.ndarray) -> float:
