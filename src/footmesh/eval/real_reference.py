@@ -21,6 +21,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from footmesh.geometry.camera import rescale_pixels
+
 MARKED_SIDE_PX = 1600
 """The marked corners are in px of the photo scaled to this longer side."""
 DILATE_PX = 15
@@ -129,9 +131,11 @@ def score_photo(
     if found is None:
         return RealReferenceScore(Path(path).name, None, nan4, float("nan"), float("nan"), searched.rejected, seconds)
     to_marked = MARKED_SIDE_PX / max(photo.rgb.shape[:2])
-    errors = matched_corner_errors(found.corners_px * to_photo * to_marked, marked_px)
+    # pixel centres, not the pixels' corners, are scaled (``rescale_pixels``): a plain product moved every found
+    # corner 0.75 px towards the origin at 1600 px
+    errors = matched_corner_errors(rescale_pixels(found.corners_px, to_photo * to_marked), marked_px)
     # at the camera the object was found with (its perspective may have corrected a guessed focal length)
-    truth = sheet_centre_distance_mm(marked_px / (to_photo * to_marked), found.K)
+    truth = sheet_centre_distance_mm(rescale_pixels(marked_px, 1.0 / (to_photo * to_marked)), found.K)
     return RealReferenceScore(
         photo=Path(path).name,
         kind=found.kind,
@@ -158,8 +162,8 @@ def score_turned(
     turned_path = Path(folder) / f"{Path(path).stem}_turned{quarter_turns % 4}.png"
     _write_png(turned_path, np.rot90(rgb, quarter_turns))
     pixels = turned_pixels(w, h, quarter_turns)
-    turned_px = (marked_px / to_marked) @ pixels[:2, :2].T + pixels[:2, 2]
-    return score_photo(turned_path, turned_px * to_marked)
+    turned_px = rescale_pixels(marked_px, 1.0 / to_marked) @ pixels[:2, :2].T + pixels[:2, 2]
+    return score_photo(turned_path, rescale_pixels(turned_px, to_marked))
 
 
 def score_cropped(
@@ -177,7 +181,7 @@ def score_cropped(
     rgb = photo.rgb
     h, w = rgb.shape[:2]
     to_marked = MARKED_SIDE_PX / max(h, w)
-    corners = marked_px / to_marked
+    corners = rescale_pixels(marked_px, 1.0 / to_marked)
     axis = 1 if edge in ("top", "bottom") else 0
     signed = corners[:, axis] if edge in ("top", "left") else -corners[:, axis]
     first, second = np.sort(signed)[1:3]
@@ -192,13 +196,13 @@ def score_cropped(
     image = rgb[start[1] : stop[1], start[0] : stop[0]]
     _write_png(cropped_name.with_suffix(".png"), image)
     focal = float(whole.found.K[0, 0]) * to_photo
-    centre = K[:2, 2] * to_photo - start
+    centre = rescale_pixels(K[:2, 2], to_photo) - start
     intrinsics = {"fx": focal, "fy": focal, "cx": float(centre[0]), "cy": float(centre[1])}
     intrinsics |= {"width": float(image.shape[1]), "height": float(image.shape[0])}
     k_path = cropped_name.with_suffix(".K.json")
     k_path.write_text(json.dumps(intrinsics))
     crop_to_marked = MARKED_SIDE_PX / max(image.shape[:2])
-    return score_photo(cropped_name.with_suffix(".png"), (corners - start) * crop_to_marked, k_path)
+    return score_photo(cropped_name.with_suffix(".png"), rescale_pixels(corners - start, crop_to_marked), k_path)
 
 
 def _write_png(path: Path, rgb: np.ndarray) -> None:
