@@ -21,6 +21,7 @@ from footmesh.cues import Cues
 from footmesh.errors import Refusal
 from footmesh.eval.measure import write_inputs
 from footmesh.examples import examples
+from footmesh.fit import FitConfig
 from footmesh.pipeline import (
     CropBox,
     Located,
@@ -250,12 +251,21 @@ def test_a_free_fit_settled_in_a_worse_basin_gives_way_to_the_fit_held_upright_o
 
 
 @pytest.mark.slow
-def test_a_foot_seen_from_the_front_is_measured_standing_on_the_sheets_floor(tmp_path):
+def test_a_foot_seen_from_the_front_is_measured_standing_on_the_sheets_floor(tmp_path, monkeypatch):
     """A render from in front of the toes, the person standing on an A4 sheet (``eval measure --views front``, seed
     4242, photo 12): the photo does not show whether the hidden heel rests on the sheet, and the fit tips the
     foot, 22 mm short. Fitted standing on the sheet's floor (heel and ball on it) at no higher cost, it is 11 mm
-    short."""
+    short. The standing fit carries more of its starts to the end than the others (``standing_full_starts``)."""
+    import footmesh.fit
+
     paths, truth = _eval_render_on_a4("front", 12, tmp_path / "in")
+    fit_foot, starts = footmesh.fit.fit_foot, {}
+
+    def recorded(*args, config, **kwargs):
+        starts.setdefault(config.sole_contact, set()).add(config.full_starts)
+        return fit_foot(*args, config=config, **kwargs)
+
+    monkeypatch.setattr(footmesh.fit, "fit_foot", recorded)
 
     def measured(config: MeasureConfig) -> dict:
         out = tmp_path / str(config.standing_max_side_cos)
@@ -266,6 +276,8 @@ def test_a_foot_seen_from_the_front_is_measured_standing_on_the_sheets_floor(tmp
     assert any("fitted standing on the floor that an A4 sheet" in m for m in standing["messages"])
     tipped_error, standing_error = (r["measurements"]["stick_length"]["value_mm"] - truth for r in (tipped, standing))
     assert -15.0 < standing_error < 0.0 and tipped_error < -20.0
+    assert starts == {True: {MeasureConfig().standing_full_starts}, False: {FitConfig().full_starts}}
+    assert MeasureConfig().standing_full_starts > FitConfig().full_starts
 
 
 @pytest.mark.slow

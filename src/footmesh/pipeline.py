@@ -1083,7 +1083,10 @@ def _measure_located(
         fit_config = FitConfig(joint_sigma_px=joint_sigma_px(located.crop.side, config))
         if hold is not None:
             fit_config = replace(
-                fit_config, upright_robust=config.flat_refit_upright_robust, sole_contact=hold == "standing"
+                fit_config,
+                upright_robust=config.flat_refit_upright_robust,
+                sole_contact=hold == "standing",
+                full_starts=config.standing_full_starts if hold == "standing" else fit_config.full_starts,
             )
         return fit_foot(
             located.cues,
