@@ -254,8 +254,9 @@ def test_a_free_fit_settled_in_a_worse_basin_gives_way_to_the_fit_held_upright_o
 def test_a_foot_seen_from_the_front_is_measured_standing_on_the_sheets_floor(tmp_path, monkeypatch):
     """A render from in front of the toes, the person standing on an A4 sheet (``eval measure --views front``, seed
     4242, photo 12): the photo does not show whether the hidden heel rests on the sheet, and the fit tips the
-    foot, 22 mm short. Fitted standing on the sheet's floor (heel and ball on it) at no higher cost, it is 11 mm
-    short. The standing fit carries more of its starts to the end than the others (``standing_full_starts``)."""
+    foot, 22 mm short. Fitted standing on the sheet's floor (heel and ball on it) at no higher cost, it is 12 mm
+    short (11 from 2 starts). The standing fit carries more of its starts to the end than the others
+    (``standing_full_starts``)."""
     import footmesh.fit
 
     paths, truth = _eval_render_on_a4("front", 12, tmp_path / "in")
