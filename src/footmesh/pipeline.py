@@ -1082,12 +1082,9 @@ def _measure_located(
         "standing", held upright and bearing weight on it (its heel and its ball on it: ``FitConfig.sole_contact``)."""
         fit_config = FitConfig(joint_sigma_px=joint_sigma_px(located.crop.side, config))
         if hold is not None:
-            fit_config = replace(
-                fit_config,
-                upright_robust=config.flat_refit_upright_robust,
-                sole_contact=hold == "standing",
-                full_starts=config.standing_full_starts if hold == "standing" else fit_config.full_starts,
-            )
+            fit_config = replace(fit_config, upright_robust=config.flat_refit_upright_robust)
+        if hold == "standing":
+            fit_config = replace(fit_config, sole_contact=True, full_starts=config.standing_full_starts)
         return fit_foot(
             located.cues,
             K if on is None else on.K,
