@@ -169,9 +169,8 @@ def _search_image(
         return searched
     if valid is not None:
         # the mask is the silhouette network's, and on real photos it sometimes spreads over the floor and hides
-        # the sheet's sides; the sides' own tests (straight, supported, not running on) still hold without it
-        # the sides' own tests (straight, supported, not running on) still hold without it; but the foot's own
-        # lit skin is no sheet: what the mask leaves of a sheet must be paper
+        # the sheet's sides; the sides' own tests (straight, supported, not running on) still hold without it,
+        # but the foot's own lit skin is no sheet: what the mask leaves of a sheet must be paper
         masked = exclude_mask.astype(bool)
         again = _try_groups(sheet_groups, card_groups, sheets, wanted, blurred, K, None, masked, focal_prior_log_sd)
         if again.found is not None:
