@@ -7,10 +7,12 @@ import json
 import math
 from dataclasses import replace
 from pathlib import Path
+from types import SimpleNamespace
 
 import cv2
 import numpy as np
 import pytest
+import torch
 from hypothesis import given
 from hypothesis import strategies as st
 
@@ -22,11 +24,13 @@ from footmesh.errors import Refusal
 from footmesh.eval.measure import write_inputs
 from footmesh.examples import examples
 from footmesh.fit import FitConfig
+from footmesh.model.layer import default_model
 from footmesh.pipeline import (
     CropBox,
     Located,
     _apart,
     _cues_in_photo,
+    _measured_fit,
     _turned_back_located,
     leg_angle_deg,
     measure_photo,
@@ -76,6 +80,24 @@ def test_cues_of_a_crop_land_in_photo_pixels():
     assert photo.silhouette.sum() == sil.sum()
     assert photo.silhouette[5 + 2, -2 + 3] == 1
     assert np.allclose(photo.joints2d_px[0], [-1.0, 7.0])
+
+
+def test_a_fit_ending_far_outside_the_population_is_refused_in_words_for_the_user():
+    """measure_foot's frame checks speak to a caller's own mesh ("bring it to the canonical pose"); a fitted
+    shape 8 SD out along its second component breaks them, and the user reads what went wrong instead."""
+    model = default_model()
+    shape = np.zeros(model.num_components)
+    shape[1] = 8.0
+
+    def canonical_vertices(m):
+        return m(torch.as_tensor(shape, dtype=torch.float32)[None], side="left").vertices[0].detach().double().numpy()
+
+    fit = SimpleNamespace(shape=shape, side="left", canonical_vertices=canonical_vertices)
+    with pytest.raises(Refusal) as refused:
+        _measured_fit(fit, model)
+    message = str(refused.value)
+    assert "8 SD from the average foot" in message and "a fit that went wrong" in message
+    assert "canonical" not in message and "frame" not in message
 
 
 def test_output_folders_one_per_photo_and_unique(tmp_path):

@@ -1288,7 +1288,13 @@ def _measured_fit(fit, model) -> tuple[np.ndarray, np.ndarray, Measurements]:
             canonical, faces, FootLandmarks.from_joints(rest.joints[0].double().numpy()), side=fit.side
         )
     except ValueError as exc:
-        raise refusals.unmeasurable(str(exc)) from exc
+        # measure_foot's words are for a caller's own mesh (its frame, its units); the model's mesh breaks its
+        # checks only where the fitted shape lies far outside the population
+        far = float(np.abs(fit.shape).max())
+        raise refusals.unmeasurable(
+            f"the fit ended in a shape {far:.0f} SD from the average foot along one of its components: a fit that "
+            "went wrong"
+        ) from exc
     return canonical, faces, measured
 
 
