@@ -138,3 +138,16 @@ def test_to_dict_from_dict_round_trip():
         assert CuesTrainingConfig.from_dict(data) == config
         # and through JSON (tuples become lists and back), as in a --config file or a checkpoint
         assert CuesTrainingConfig.from_dict(json.loads(json.dumps(data))) == config
+
+
+def test_a_fit_held_standing_bears_on_its_heel_and_ball_and_carries_more_starts():
+    from footmesh.fit import FitConfig
+
+    config, free = MeasureConfig(), FitConfig(joint_sigma_px=2.0)
+    assert config.held_fit(free, None) == free
+    upright = config.held_fit(free, "upright")
+    assert upright.upright_robust == config.flat_refit_upright_robust != free.upright_robust
+    assert not upright.sole_contact and upright.full_starts == free.full_starts
+    standing = config.held_fit(free, "standing")
+    assert standing.sole_contact and standing.full_starts == config.standing_full_starts != free.full_starts
+    assert standing.upright_robust == upright.upright_robust and standing.joint_sigma_px == 2.0

@@ -9,9 +9,12 @@ from __future__ import annotations
 import json
 import os
 from dataclasses import asdict, dataclass, field, fields, replace
-from typing import Any
+from typing import TYPE_CHECKING, Any, Literal
 
 from footmesh import references
+
+if TYPE_CHECKING:  # the fit (and torch) is not needed to hold its settings
+    from footmesh.fit import FitConfig
 
 INPUT_CHANNELS = {"rgb": 3, "rgbd": 4, "depth": 1}
 """Channels of each input kind of the 2D-cues network."""
@@ -539,6 +542,16 @@ class MeasureConfig:
     11.1, RGB-D 30.3). There the length error grew with the cost (RGB + reference, thirds by cost: mean 1.9 / 4.3 /
     7.0 mm) while the unscaled uncertainty did not (4.9 / 4.6 / 4.5 mm); real photos fit with costs of 37-200."""
     uncertainty_floor_mm: float = 0.5
+
+    def held_fit(self, fit_config: FitConfig, hold: Literal["upright", "standing"] | None) -> FitConfig:
+        """``fit_config`` for a fit held on the floor: "upright" (``flat_refit_upright_robust``), "standing"
+        (upright, its heel and its ball on the floor, ``standing_full_starts`` starts carried to the end), or as it
+        is (None)."""
+        if hold is not None:
+            fit_config = replace(fit_config, upright_robust=self.flat_refit_upright_robust)
+        if hold == "standing":
+            fit_config = replace(fit_config, sole_contact=True, full_starts=self.standing_full_starts)
+        return fit_config
 
     def __post_init__(self) -> None:
         if self.decoder_kind not in DECODER_KINDS:

@@ -1080,11 +1080,7 @@ def _measure_located(
         """The fit on the floor of the reference ``on`` (with the camera its pose was solved with), or on none;
         ``hold``: "upright", held upright on that floor (``MeasureConfig.flat_refit_upright_robust``), or
         "standing", held upright and bearing weight on it (its heel and its ball on it: ``FitConfig.sole_contact``)."""
-        fit_config = FitConfig(joint_sigma_px=joint_sigma_px(located.crop.side, config))
-        if hold is not None:
-            fit_config = replace(fit_config, upright_robust=config.flat_refit_upright_robust)
-        if hold == "standing":
-            fit_config = replace(fit_config, sole_contact=True, full_starts=config.standing_full_starts)
+        fit_config = config.held_fit(FitConfig(joint_sigma_px=joint_sigma_px(located.crop.side, config)), hold)
         return fit_foot(
             located.cues,
             K if on is None else on.K,
