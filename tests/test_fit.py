@@ -378,6 +378,14 @@ def test_synthetic_check_prints_one_line_per_mode(capsys):
     assert line.startswith("none") and "length MAE" in line and "ms/fit" in line
 
 
+def test_synthetic_check_takes_a_named_set_of_views_and_the_fit_held_standing(capsys):
+    argv = ["--check", "1", "--modes", "floor", "--side", "given", "--views", "front", "--hold", "standing"]
+    assert main([*argv, "--size", "160", "--threads", "1"]) == 0
+    assert capsys.readouterr().out.startswith("floor  n=  1")
+    with pytest.raises(SystemExit):  # argparse names the view sets there are
+        main(["--views", "sideways"])
+
+
 def test_foot_shown_is_the_share_of_the_fitted_foot_on_the_silhouette():
     model = default_model()
     with torch.no_grad():

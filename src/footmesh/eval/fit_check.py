@@ -9,6 +9,7 @@ import argparse
 import logging
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from typing import Literal
 
 import numpy as np
 import torch
@@ -81,20 +82,27 @@ def evaluate_on_synthetic(
     side: str = "auto",
     config: FitConfig | None = None,
     standing_only: bool | None = None,
+    views: str | None = None,
+    hold: Literal["upright", "standing"] | None = None,
 ) -> SyntheticCheck:
     """Fit ``n`` synthetic scenes with true cues + noise and report the length / ball-width errors.
 
     ``mode``: "depth" (the noisy depth map), "floor" (the true floor plane, RGB cues only) or "none".
     ``side``: "auto" (the fit picks), "given" (the true side is declared), "left" or "right".
     ``standing_only`` (default: True for "floor") skips lifted feet, which the floor contact term assumes away.
+    ``views``: a ``synth.scene.VIEW_PRESETS`` name (e.g. "front"), or None for the renderer's default views.
+    ``hold``: the fit held on the floor as the pipeline holds it (``MeasureConfig.held_fit``), or None (free).
     """
+    from footmesh.config import MeasureConfig
     from footmesh.synth.render import Renderer
-    from footmesh.synth.scene import SynthConfig
+    from footmesh.synth.scene import SynthConfig, view_config
 
     if mode not in MODES:
         raise ValueError(f"mode must be one of {MODES}, got {mode!r}")
     standing_only = (mode == "floor") if standing_only is None else standing_only
-    renderer = Renderer(SynthConfig(size=size, reference="a4"))
+    config = MeasureConfig().held_fit(config if config is not None else FitConfig(), hold)
+    scenes = SynthConfig(size=size, reference="a4") if views is None else view_config(views, size=size, reference="a4")
+    renderer = Renderer(scenes)
     model = default_model()
     rows = []
     index = 0
@@ -161,13 +169,23 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--size", type=int, default=320, help="image size, px (default 320)")
     parser.add_argument("--noise", type=float, default=3.0, help="joint noise, px (default 3)")
     parser.add_argument("--side", choices=("auto", "given"), default="auto", help="auto, or the true side given")
+    from footmesh.synth.scene import VIEW_PRESETS
+
+    parser.add_argument(
+        "--views", choices=tuple(VIEW_PRESETS), default=None, help="a named set of views (default: random)"
+    )
+    parser.add_argument(
+        "--hold", choices=("upright", "standing"), default=None, help="the fit held on the floor, as the pipeline may"
+    )
     parser.add_argument("--threads", type=int, default=2, help="torch threads (default 2)")
     parser.add_argument("-v", "--verbose", action="store_true")
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING, format="%(message)s")
     torch.set_num_threads(args.threads)
     for mode in args.modes:
-        check = evaluate_on_synthetic(args.check, mode, args.seed, args.size, args.noise, args.side)
+        check = evaluate_on_synthetic(
+            args.check, mode, args.seed, args.size, args.noise, args.side, views=args.views, hold=args.hold
+        )
         print(check.line(), flush=True)
     return 0
 
