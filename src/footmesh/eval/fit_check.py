@@ -1,6 +1,7 @@
 """How good the fit is with perfect cues (plus noise): the fit stage alone on synthetic scenes with known truth.
 
-``python -m footmesh.eval.fit_check --check N [--modes depth floor none]`` prints one line per mode (docs/fit.md).
+``python -m footmesh.eval.fit_check --check N [--modes depth floor none] [--views front] [--hold standing]`` prints
+one line per mode (docs/fit.md).
 """
 
 from __future__ import annotations
@@ -162,6 +163,8 @@ def _length_sd(fit: FootFit, model: FootModel, samples: int = 64) -> float:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """``python -m footmesh.eval.fit_check --check N [--modes depth floor none]``: one line per mode."""
+    from footmesh.synth.scene import VIEW_PRESETS
+
     parser = argparse.ArgumentParser(prog="python -m footmesh.eval.fit_check", description=main.__doc__)
     parser.add_argument("--check", type=int, default=50, metavar="N", help="scenes per mode (default 50)")
     parser.add_argument("--modes", nargs="+", choices=MODES, default=list(MODES))
@@ -169,8 +172,6 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--size", type=int, default=320, help="image size, px (default 320)")
     parser.add_argument("--noise", type=float, default=3.0, help="joint noise, px (default 3)")
     parser.add_argument("--side", choices=("auto", "given"), default="auto", help="auto, or the true side given")
-    from footmesh.synth.scene import VIEW_PRESETS
-
     parser.add_argument(
         "--views", choices=tuple(VIEW_PRESETS), default=None, help="a named set of views (default: random)"
     )
