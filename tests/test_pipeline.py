@@ -33,6 +33,7 @@ from footmesh.pipeline import (
     _measured_fit,
     _turned_back_located,
     leg_angle_deg,
+    length_advice,
     measure_photo,
     pair_sides,
 )
@@ -98,6 +99,15 @@ def test_a_fit_ending_far_outside_the_population_is_refused_in_words_for_the_use
     message = str(refused.value)
     assert "8 SD from the average foot" in message and "a fit that went wrong" in message
     assert "canonical" not in message and "frame" not in message
+
+
+def test_a_length_known_to_more_than_half_a_size_says_which_photo_would_narrow_it():
+    config = MeasureConfig()
+    assert length_advice(3.0, config) is None and length_advice(None, config) is None
+    advice = length_advice(9.5, config)
+    assert advice.startswith("the length is known to +- 9.5 mm, more than half a shoe size (4.2 mm)")
+    assert "from the side" in advice and "--same-foot" in advice
+    assert length_advice(9.5, MeasureConfig(length_advice_mm=None)) is None
 
 
 def test_output_folders_one_per_photo_and_unique(tmp_path):
@@ -173,6 +183,13 @@ def test_every_result_matches_the_published_schema(measured):
 
     for _, result, _ in measured.values():
         jsonschema.validate(result, json_schema())
+
+
+@pytest.mark.slow
+def test_a_bundled_photo_says_when_its_length_is_too_loose_for_half_a_size(measured):
+    for name, (_, result, _) in measured.items():
+        loose = result["measurements"]["stick_length"]["uncertainty_mm"] > MeasureConfig().length_advice_mm
+        assert loose == any("more than half a shoe size" in m for m in result["messages"]), name
 
 
 @pytest.mark.slow
