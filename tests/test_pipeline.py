@@ -149,6 +149,12 @@ def test_summary_table_lists_unscaled_and_failed_photos():
     text = summary_table([("a.jpg", unscaled, None), ("b.jpg", None, "no foot found")])
     assert "unscaled" in text and "failed: no foot found" in text
     assert len(text.splitlines()) == 3
+    loose = {**unscaled, "scale_source": "a4", "messages": []}
+    loose["measurements"] = {n: {"value_mm": 240.0, "uncertainty_mm": 12.5} for n in MEASUREMENTS}
+    tight = {**loose, "measurements": {n: {"value_mm": 240.0, "uncertainty_mm": 1.5} for n in MEASUREMENTS}}
+    lines = summary_table([("loose.jpg", loose, None), ("tight.jpg", tight, None)]).splitlines()
+    assert "240.0 +- 12.5" in lines[1] and "more photos narrow it (--same-foot)" in lines[1]
+    assert "240.0 +- 1.5" in lines[2] and "--same-foot" not in lines[2]
 
 
 # --- whole photos (the shipped networks) ----------------------------------------------------------------------

@@ -12,6 +12,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from footmesh import __version__
+from footmesh.config import MeasureConfig
 from footmesh.errors import InputError, is_users_fault, write_internal_report
 from footmesh.load import load_photo
 from footmesh.report import request_options
@@ -210,6 +211,10 @@ def summary_table(results: list[tuple[str, dict | None, str | None]]) -> str:
             return s.get("label", "-") if isinstance(s, dict) else "-"
 
         note = "; ".join(msg for msg in result.get("messages", []) if msg.startswith("unscaled"))[:60]
+        loose = m["stick_length"]["uncertainty_mm"]
+        limit = MeasureConfig().length_advice_mm  # the result's messages say it whole (pipeline.length_advice)
+        if loose is not None and limit is not None and loose > limit:
+            note = "over half a size: more photos narrow it (--same-foot)"
         for foot in result.get("feet", []):
             if foot["measured"] and not foot["primary"]:
                 other = foot["measurements"]["stick_length"]["value_mm"]
