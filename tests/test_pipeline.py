@@ -33,7 +33,6 @@ from footmesh.pipeline import (
     _measured_fit,
     _turned_back_located,
     leg_angle_deg,
-    length_advice,
     measure_photo,
     pair_sides,
 )
@@ -99,15 +98,6 @@ def test_a_fit_ending_far_outside_the_population_is_refused_in_words_for_the_use
     message = str(refused.value)
     assert "8 SD from the average foot" in message and "a fit that went wrong" in message
     assert "canonical" not in message and "frame" not in message
-
-
-def test_a_length_known_to_more_than_half_a_size_says_which_photo_would_narrow_it():
-    config = MeasureConfig()
-    assert length_advice(3.0, config) is None and length_advice(None, config) is None
-    advice = length_advice(9.5, config)
-    assert advice.startswith("the length is known to +- 9.5 mm, more than half a shoe size (4.2 mm)")
-    assert "from the side" in advice and "--same-foot" in advice
-    assert length_advice(9.5, MeasureConfig(length_advice_mm=None)) is None
 
 
 def test_output_folders_one_per_photo_and_unique(tmp_path):

@@ -9,7 +9,8 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from footmesh.sizes import BARLEYCORN_MM, ShoeSizes, shoe_sizes
+from footmesh.config import MeasureConfig
+from footmesh.sizes import BARLEYCORN_MM, HALF_SIZE_MM, ShoeSizes, length_advice, shoe_sizes
 
 INCH = 25.4
 
@@ -144,3 +145,13 @@ def test_one_size_steps():
     up = shoe_sizes(250.0 + BARLEYCORN_MM)
     assert np.isclose(up.us_men.exact - base.us_men.exact, 1.0)
     assert np.isclose(shoe_sizes(250.0 + 20 / 3).eu.exact - base.eu.exact, 1.0)
+
+
+def test_a_length_known_to_more_than_half_a_size_says_which_photo_would_narrow_it():
+    limit = MeasureConfig().length_advice_mm
+    assert limit == HALF_SIZE_MM == BARLEYCORN_MM / 2
+    assert length_advice(3.0, limit) is None and length_advice(None, limit) is None
+    advice = length_advice(9.5, limit)
+    assert advice.startswith("the length is known to +- 9.5 mm, more than half a shoe size (4.2 mm)")
+    assert "from the side" in advice and "--same-foot" in advice
+    assert length_advice(9.5, MeasureConfig(length_advice_mm=None).length_advice_mm) is None

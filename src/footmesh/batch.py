@@ -16,6 +16,7 @@ from footmesh.config import MeasureConfig
 from footmesh.errors import InputError, is_users_fault, write_internal_report
 from footmesh.load import load_photo
 from footmesh.report import request_options
+from footmesh.sizes import length_advice
 
 log = logging.getLogger("footmesh.measure")
 
@@ -211,10 +212,8 @@ def summary_table(results: list[tuple[str, dict | None, str | None]]) -> str:
             return s.get("label", "-") if isinstance(s, dict) else "-"
 
         note = "; ".join(msg for msg in result.get("messages", []) if msg.startswith("unscaled"))[:60]
-        loose = m["stick_length"]["uncertainty_mm"]
-        limit = MeasureConfig().length_advice_mm  # the result's messages say it whole (pipeline.length_advice)
-        if loose is not None and limit is not None and loose > limit:
-            note = "over half a size: more photos narrow it (--same-foot)"
+        if length_advice(m["stick_length"]["uncertainty_mm"], MeasureConfig().length_advice_mm) is not None:
+            note = "over half a size: more photos narrow it (--same-foot)"  # the result's messages say it whole
         for foot in result.get("feet", []):
             if foot["measured"] and not foot["primary"]:
                 other = foot["measurements"]["stick_length"]["value_mm"]

@@ -12,6 +12,7 @@ from dataclasses import asdict, dataclass, field, fields, replace
 from typing import TYPE_CHECKING, Any, Literal
 
 from footmesh import references
+from footmesh.sizes import HALF_SIZE_MM
 
 if TYPE_CHECKING:  # the fit (and torch) is not needed to hold its settings
     from footmesh.fit import FitConfig
@@ -542,10 +543,11 @@ class MeasureConfig:
     11.1, RGB-D 30.3). There the length error grew with the cost (RGB + reference, thirds by cost: mean 1.9 / 4.3 /
     7.0 mm) while the unscaled uncertainty did not (4.9 / 4.6 / 4.5 mm); real photos fit with costs of 37-200."""
     uncertainty_floor_mm: float = 0.5
-    length_advice_mm: float | None = 25.4 / 6
+    length_advice_mm: float | None = HALF_SIZE_MM
     """A result whose length is known only to more than this (+- one uncertainty; half a UK or US shoe size, 1/6
-    inch = 4.23 mm) says so in its messages and which photo would narrow it: one photo then does not tell the size
-    to half a size (the seven real A4 photos: +- 10.8-24.9 mm, the heel hidden under the shin). None: never said."""
+    inch = 4.23 mm) says so in its messages and which photos would narrow it (``sizes.length_advice``): one photo
+    then does not tell the size to half a size (the seven real A4 photos: +- 10.8-24.9 mm, the heel hidden under
+    the shin). None: never said."""
 
     def held_fit(self, fit_config: FitConfig, hold: Literal["upright", "standing"] | None) -> FitConfig:
         """``fit_config`` for a fit held on the floor: "upright" (``flat_refit_upright_robust``), "standing"

@@ -39,7 +39,7 @@ from footmesh.model import skeleton as sk
 from footmesh.model.layer import default_model
 from footmesh.report import request_options
 from footmesh.result import FootEntry, MeasureResult
-from footmesh.sizes import shoe_sizes
+from footmesh.sizes import length_advice, shoe_sizes
 from footmesh.threads import PIPELINE_THREADS, fixed_threads, torch_threads
 from footmesh.uncertainty import measurement_uncertainty
 
@@ -1193,7 +1193,7 @@ def _measure_located(
             measurement_uncertainty(fit, measured, scale_source, reference, model, config, focal_effect)
         )
         sizes = shoe_sizes(measured.stick_length.value_mm, measured.ball_width.value_mm)
-        if (advice := length_advice(measured.stick_length.uncertainty_mm, config)) is not None:
+        if (advice := length_advice(measured.stick_length.uncertainty_mm, config.length_advice_mm)) is not None:
             messages.append(advice)
     else:
         measured = measured.as_unscaled()
@@ -1250,18 +1250,6 @@ def _measure_located(
     mask = cv2.resize(located.mask.astype(np.uint8) * 255, photo.rgb.shape[1::-1], interpolation=cv2.INTER_NEAREST)
     files = _Files(fit.vertices_cam, canonical, model.faces(fit.side).numpy(), faces, overlay, mask)
     return result, files, located, fit, K
-
-
-def length_advice(uncertainty_mm: float | None, config: MeasureConfig) -> str | None:
-    """What a result whose length is known to more than ``config.length_advice_mm`` says, or None."""
-    limit = config.length_advice_mm
-    if uncertainty_mm is None or limit is None or uncertainty_mm <= limit:
-        return None
-    return (
-        f"the length is known to +- {uncertainty_mm:.1f} mm, more than half a shoe size ({limit:.1f} mm): for a "
-        "closer figure measure more photos of the same foot together (footmesh measure --same-foot), best from the "
-        "side and above with the heel in view"
-    )
 
 
 def _focal_effect_mm(reference: ReferenceObject, measured: Measurements, refit, model) -> dict[str, float] | None:

@@ -35,6 +35,8 @@ EU_STEP = 0.5
 """EU sizes are sold in whole and half sizes (e.g. Nike's and adidas' charts); we round to the half size."""
 BARLEYCORN_MM = MM_PER_INCH / 3.0
 """One UK/US size: 1/3 inch = 8.47 mm."""
+HALF_SIZE_MM = BARLEYCORN_MM / 2.0
+"""Half a UK/US size, the step they are sold in: 4.23 mm."""
 UK_ADULT_OFFSET = 23.0
 UK_CHILD_OFFSET = 10.0
 US_MEN_OFFSET = 22.0
@@ -130,6 +132,17 @@ def _child(length_mm: float, offset: float, prefix: str) -> Size | None:
     value = round_to_step(exact, 0.5)
     lo, hi = CHILD_RANGE
     return Size(value, f"{prefix} {_fmt(value)}", exact) if lo <= value <= hi else None
+
+
+def length_advice(uncertainty_mm: float | None, limit_mm: float | None) -> str | None:
+    """What a result whose foot length is known only to more than ``limit_mm`` (+- one uncertainty) says, or None."""
+    if uncertainty_mm is None or limit_mm is None or uncertainty_mm <= limit_mm:
+        return None
+    return (
+        f"the length is known to +- {uncertainty_mm:.1f} mm, more than half a shoe size ({limit_mm:.1f} mm): for a "
+        "closer figure measure more photos of the same foot together (footmesh measure --same-foot), best from the "
+        "side and above with the heel in view"
+    )
 
 
 def shoe_sizes(length_mm: float | None, ball_width_mm: float | None = None) -> ShoeSizes:
