@@ -612,6 +612,12 @@ def _run_stages(
             )
         if reference is not None and reference.kind_assumed:
             notes.append(_assumed_sheet_note(reference, reference_kind == "auto"))
+        if reference is not None and reference.corner_beyond_edge:
+            notes.append(
+                f"a corner of {references.kind(reference.kind).described} lies beyond the photo's edge: it was "
+                f"placed where the sheet's two sides running there meet (scale known to "
+                f"{100 * reference.scale_rel_sd:.1f} %); for the best figures photograph all of it"
+            )
         if reference is not None and config.clear_paper and references.kind(reference.kind).detector == "sheet":
             sheet_px = reference.corners_px
             feet = [_off_the_paper(foot, rgb, sheet_px) for foot in feet]

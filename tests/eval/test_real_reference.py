@@ -100,6 +100,19 @@ def test_a_real_sheet_cut_by_the_photos_edge_is_placed_from_its_other_sides(tmp_
     assert abs(score.centre_distance_error) <= 3.0 * score.scale_rel_sd
 
 
+@pytest.mark.parametrize(("name", "edge"), [("arshoe_barefeet_4.jpg", "left"), ("wildoctopus_barefeet1.jpg", "left")])
+def test_a_real_sheet_with_one_corner_beyond_the_photos_edge_is_placed_where_its_sides_meet(tmp_path, name, edge):
+    """A real photo cropped so that its edge cuts off one corner of the sheet (a quarter of the way from that corner
+    to the next along the edge): that corner is placed where the two sides running to it meet, within 12 px (of
+    1600: extrapolated along real, slightly bowed sides), the others where they were marked, and the scale is
+    within 3 of its own SD. Both were refused before ("a corner lies on or beyond the edge of the photo")."""
+    score = score_cropped(PHOTOS / name, read_corners(CORNERS)[name], edge, 0.25, tmp_path, corners_cut=1)
+    assert score.found, score.rejected
+    assert max(score.corner_errors_px) <= 12.0, score.corner_errors_px
+    assert sorted(score.corner_errors_px)[2] <= 6.0, score.corner_errors_px
+    assert abs(score.centre_distance_error) <= 3.0 * score.scale_rel_sd
+
+
 def test_a_sheet_barely_cut_is_not_rebuilt_from_the_foots_outline(tmp_path):
     """The photo's edge just inside the sheet's near corners, the foot standing on it: the search once took the
     sheet's two far sides, the foot's outline and the paper's shading for a whole sheet completed across a hidden

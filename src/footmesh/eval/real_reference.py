@@ -167,11 +167,17 @@ def score_turned(
 
 
 def score_cropped(
-    path: str | os.PathLike, marked_px: np.ndarray, edge: str, depth: float, folder: str | os.PathLike
+    path: str | os.PathLike,
+    marked_px: np.ndarray,
+    edge: str,
+    depth: float,
+    folder: str | os.PathLike,
+    corners_cut: int = 2,
 ) -> RealReferenceScore:
     """``score_photo`` of the photo cropped so that its ``edge`` ("top", "bottom", "left" or "right") cuts across the
-    sheet and leaves the two corners nearest that edge beyond it: the crop's edge crosses ``depth`` of the way from
-    the nearer of those corners to the nearer of the others (a photo framed on the foot; ``cut``). The crop is
+    sheet and leaves the ``corners_cut`` corners nearest that edge beyond it: the crop's edge crosses ``depth`` of
+    the way from the nearest corner left out to the nearest one kept (two: a photo framed on the foot, ``cut``; one:
+    a sheet lying askew, its corner cut off, ``finish.finish_beyond``). The crop is
     written to ``folder`` (PNG, lossless) with its intrinsics: the focal length the whole sheet gives the photo
     (its perspective; the photos carry no EXIF) and the photo's principal point, where the crop has it, so that
     only the sheet's far side is missing."""
@@ -184,7 +190,9 @@ def score_cropped(
     corners = rescale_pixels(marked_px, 1.0 / to_marked)
     axis = 1 if edge in ("top", "bottom") else 0
     signed = corners[:, axis] if edge in ("top", "left") else -corners[:, axis]
-    first, second = np.sort(signed)[1:3]
+    if corners_cut not in (1, 2):
+        raise ValueError(f"corners_cut must be 1 or 2, got {corners_cut}")
+    first, second = np.sort(signed)[corners_cut - 1 : corners_cut + 1]
     cut = int(round(abs(first + depth * (second - first))))
     start = np.zeros(2, int)
     stop = np.array([w, h])
@@ -192,7 +200,7 @@ def score_cropped(
         start[axis] = cut
     else:
         stop[axis] = cut
-    cropped_name = Path(folder) / f"{Path(path).stem}_{edge}{round(100 * depth)}"
+    cropped_name = Path(folder) / f"{Path(path).stem}_{edge}{round(100 * depth)}_{corners_cut}"
     image = rgb[start[1] : stop[1], start[0] : stop[0]]
     _write_png(cropped_name.with_suffix(".png"), image)
     focal = float(whole.found.K[0, 0]) * to_photo

@@ -14,13 +14,19 @@ from footmesh.cues.reference.params import (
     _LOOSEST_COVERAGE,
     ANGLE_TOLERANCE_DEG,
     ASPECT_TOLERANCE,
+    BEYOND_CLEAR_PX,
+    BEYOND_EDGE_INSET_PX,
+    BEYOND_FLOOR_MATCH,
+    BEYOND_MIN_SHOWN,
     BORDER_MARGIN_PX,
     COMPLETED_MIN_SIDE_SUPPORT,
     FIRST_RADIUS_PX,
+    FLOOR_MATCH,
     FOCAL_KINDS,
     MAX_ANGLE_TOLERANCE_DEG,
     MAX_ASPECT_TOLERANCE,
     MAX_SCALE_REL_SD,
+    MIN_BLANK_SHARE,
     MIN_COVERAGE,
     MIN_MEAN_SUPPORT,
     MIN_SIDE_PX,
@@ -34,7 +40,14 @@ from footmesh.cues.reference.params import (
     assumed_sheet,
 )
 from footmesh.cues.reference.pose import _distance, _shape_sd, placed
-from footmesh.cues.reference.quads import _classify, _corner_points_many, _inside, _parallelogram, _signed_area
+from footmesh.cues.reference.quads import (
+    _classify,
+    _corner_points_many,
+    _inside,
+    _inside_many,
+    _parallelogram,
+    _signed_area,
+)
 from footmesh.cues.reference.sides import (
     _blank_inside,
     _bowed_corners,
@@ -44,12 +57,14 @@ from footmesh.cues.reference.sides import (
     _corners_of,
     _curved,
     _fit_sides,
+    _inner_outer,
     _is_paper,
     _Line,
     _perturbed_corner_pairs,
     _perturbed_corners,
     _refine_sides,
     _strange_borders,
+    side_in_view,
 )
 
 
@@ -115,11 +130,12 @@ def _finish_quad(
     first_radius: float = FIRST_RADIUS_PX,
     rejected: list[str] | None = None,
     focal_prior_log_sd: float = 0.0,
+    corner_beyond: bool = False,
 ) -> tuple[float, ReferenceObject] | None:
     """``_finish`` without the completion of a sheet (``first``: the sides fitted at ``first_radius``;
     ``completed``: the quad is a sheet completed across a hidden corner, whose kind is ``assumed_sheet``'s;
     ``rejected``: why the quad is not the object, appended in words when it is not; ``focal_prior_log_sd``: see
-    ``_finish``)."""
+    ``_finish``; ``corner_beyond``: one corner of the quad lies beyond the photo's edge, ``finish_beyond``)."""
 
     def reject(why: str) -> None:
         if rejected is not None:
@@ -128,13 +144,16 @@ def _finish_quad(
     h, w = blurred.shape[:2]
     if not _inside(quad, h, w, margin=-max(h, w)):  # a completion's guess far off: nothing there to read
         return reject("a corner lies far beyond the edge of the photo")
-    refined = _refine_sides(quad, blurred, valid, radii=(first_radius, 1.5), first=first)
+    refined = _refine_sides(quad, blurred, valid, radii=(first_radius, 1.5), first=first, in_view=corner_beyond)
     if refined is None:
         return reject("a side's edge could not be traced along it")
     corners, lines = refined
     # a marker is read by its pattern, not cut out by the border: it only has to lie in the image
     marker = all(references.kind(k).detector == "marker" for k in kinds)
-    if not _inside(corners, h, w, margin=0.0 if marker else BORDER_MARGIN_PX):
+    if corner_beyond:
+        if (why := _beyond_too_far(corners, h, w)) is not None:
+            return reject(why)
+    elif not _inside(corners, h, w, margin=0.0 if marker else BORDER_MARGIN_PX):
         return reject("a corner lies on or beyond the edge of the photo")
     if min(np.linalg.norm(np.roll(corners, -1, axis=0) - corners, axis=1)) < MIN_SIDE_PX:
         return reject("it is too small in the photo")
@@ -201,6 +220,7 @@ def _finish_quad(
             first_radius,
             rejected,
             focal_prior_log_sd=0.0,
+            corner_beyond=corner_beyond,
         )
     sheet = kind in SHEETS
     if coverage.min() < MIN_COVERAGE[kind][0] or coverage.mean() < MIN_COVERAGE[kind][1]:
@@ -213,8 +233,10 @@ def _finish_quad(
         return reject("it is not white paper brighter than the floor")
     if sheet and valid is not None and not _blank_inside(corners, lines, valid, blurred):
         return reject("it is not blank inside (a pattern or an object on it: tiles, not a sheet)")
+    if corner_beyond and not _paper_to_the_edge(corners, lines, blurred, valid):
+        return reject("its paper does not reach the photo's edge where its sides leave it (a shadow across it?)")
     if sheet:
-        strange, outside = _strange_borders(corners, lines)
+        strange, outside = _strange_borders(corners, lines, BEYOND_FLOOR_MATCH if corner_beyond else FLOOR_MATCH)
         # a completed sheet's fourth side runs where the foot hides it (its colours are the foot's), not beside it
         if outside or len(strange) > (1 if completed else 0):
             side = (outside or strange)[-1] + 1
@@ -222,9 +244,10 @@ def _finish_quad(
     if _continues(blurred, corners, lines, valid):
         return reject("its sides run on past its corners (tiles, planks or a printed grid)")
     at_corner = [(j, ln) for i, ln in enumerate(lines) for j in (i, (i + 1) % 4)]  # each corner's two lines
-    if sheet:
+    # (the sides' second readings follow whole sides and every corner: a corner beyond the photo keeps the first)
+    if sheet and not corner_beyond:
         corners, lines, perturbed, coverage = _clean_sides(corners, lines, blurred, perturbed)
-    if sheet and (bowed := _bowed_corners(corners, lines, blurred)) is not None:
+    if sheet and not corner_beyond and (bowed := _bowed_corners(corners, lines, blurred)) is not None:
         local_perturbed = _perturbed_corner_pairs(bowed)
         local = _corners_of(bowed)
         local_sd = _shape_sd(local, local_perturbed, K)
@@ -258,6 +281,7 @@ def _finish_quad(
         K=K,
         focal_log_sd=focal_log_sd,
         mirrored=mirrored,
+        corner_beyond_edge=corner_beyond,
     )
     # among candidates of one kind: the best-supported (a sheet: along its paper-to-floor edges), most precise,
     # then the larger (a sheet, not part of it)
@@ -268,6 +292,75 @@ def _finish_quad(
     score = float(supports.mean() + coverage.mean()) - SHAPE_WEIGHT * shape_misfit - 10.0 * fit_sd
     score += 1e-6 * abs(_signed_area(corners))
     return score, obj
+
+
+def finish_beyond(
+    quad: np.ndarray,
+    kinds: list[str],
+    blurred: np.ndarray,
+    K: np.ndarray,
+    valid: np.ndarray | None,
+    rejected: list[str] | None = None,
+    focal_prior_log_sd: float = 0.0,
+) -> tuple[float, ReferenceObject] | None:
+    """``_finish`` for a rough quad with one corner beyond the photo's edge (``quads._beyond_many``): its four
+    sides read where they are in view, that corner placed where the two running to it meet, and every test of
+    a whole rectangle made, its proportions naming it (a sheet's or a card's). (score, object) or None (then
+    why, in words, appended to ``rejected``)."""
+    why: list[str] = []
+    result = _finish_quad(
+        quad, kinds, blurred, K, valid, rejected=why, focal_prior_log_sd=focal_prior_log_sd, corner_beyond=True
+    )
+    if result is None and why and rejected is not None:
+        rejected.append(f"a corner lies beyond the photo's edge and {why[0]}")
+    return result
+
+
+def _beyond_too_far(corners: np.ndarray, h: int, w: int) -> str | None:
+    """Why a refined quad (4, 2) px with a corner beyond the photo's edge cannot be placed from its sides in view,
+    or None when it can: three corners clear of the edge (``BEYOND_CLEAR_PX``: a side along the edge shows only a
+    sliver, and the line read there is another edge's), the fourth beyond it (not on it), and both sides running
+    to that one mostly in view (``BEYOND_MIN_SHOWN``)."""
+    out = ~_inside_many(corners[:, None], h, w, margin=-BORDER_MARGIN_PX)
+    clear = _inside_many(corners[:, None], h, w, margin=BEYOND_CLEAR_PX)
+    if out.sum() != 1 or clear.sum() != 3:
+        return "a corner lies on the edge of the photo"
+    far = int(np.flatnonzero(out)[0])
+    for near in (corners[(far - 1) % 4], corners[(far + 1) % 4]):
+        seen = side_in_view(near, corners[far], h, w)
+        length = float(np.linalg.norm(corners[far] - near))
+        shown = 0.0 if seen is None else float(np.linalg.norm(seen[1] - seen[0])) / length
+        if shown < BEYOND_MIN_SHOWN:
+            return f"a side running to that corner shows only {100 * shown:.0f} % of its length"
+    return None
+
+
+def _paper_to_the_edge(corners: np.ndarray, lines: list[_Line], blurred: np.ndarray, valid: np.ndarray | None) -> bool:
+    """Whether a sheet's paper (the colour inside its sides, ``_inner_outer``) reaches the photo's edge between the
+    two points where the sides running to its corner beyond the edge leave the photo: along that stretch, just
+    inside the edge, at least ``MIN_BLANK_SHARE`` of the pixels that ``valid`` (H, W) bool leaves (all when None)
+    lie within half the sides' typical step of it. A shadow or a line across the paper can pass for the fourth
+    side of a smaller sheet with a corner beyond the edge; the paper then runs on past it to the edge."""
+    h, w = blurred.shape[:2]
+    far = int(np.flatnonzero(~_inside_many(corners[:, None], h, w, margin=-BORDER_MARGIN_PX))[0])
+    exits = [side_in_view(corners[k], corners[far], h, w) for k in ((far - 1) % 4, (far + 1) % 4)]
+    if any(seen is None for seen in exits):
+        return False
+    a, b = exits[0][1], exits[1][1]
+    inward = corners.mean(axis=0) - (a + b) / 2
+    inward *= BEYOND_EDGE_INSET_PX / max(float(np.linalg.norm(inward)), 1e-9)
+    steps = max(int(np.linalg.norm(b - a)), 2)
+    points = a + np.linspace(0.1, 0.9, steps)[:, None] * (b - a) + inward
+    ix = np.clip(np.rint(points[:, 0]).astype(int), 0, w - 1)
+    iy = np.clip(np.rint(points[:, 1]).astype(int), 0, h - 1)
+    shown = np.ones(len(ix), dtype=bool) if valid is None else valid[iy, ix]
+    if not shown.any():
+        return True  # all of it under the foot or the leg: nothing to tell
+    inner, outer = _inner_outer(corners, lines)
+    paper = np.median(inner, axis=0)
+    change = float(np.median(np.linalg.norm(inner - outer, axis=1)))
+    near = np.linalg.norm(blurred[iy, ix] - paper, axis=1) < 0.5 * change
+    return float(near[shown].mean()) >= MIN_BLANK_SHARE
 
 
 def _named_sheet(ratio: float, ratio_sd: float, tol_ratio: float, kinds: list[str]) -> tuple[str | None, str | None]:

@@ -27,7 +27,9 @@ class ReferenceObject:
     sheet completed across a hidden corner keeps the caller's focal length and its SD); ``mirrored``: the marker
     was read in the mirror image; ``beyond_edge``: a sheet with one side beyond the photo's edge, its two corners
     there placed from its other sides and its size (``cut``; the focal length held, and its SD's effect on the
-    scale counted in ``scale_rel_sd``); ``kind_assumed``: a sheet whose proportions were not seen (completed across
+    scale counted in ``scale_rel_sd``); ``corner_beyond_edge``: a sheet with one corner beyond the photo's edge, placed
+    where the lines of its two sides running there meet (its proportions and perspective still seen);
+    ``kind_assumed``: a sheet whose proportions were not seen (completed across
     a hidden corner, or cut by the photo's edge), taken to be the most preferred sheet searched
     (``params.assumed_sheet``): a sheet of another size would give other millimetres.
     """
@@ -44,6 +46,7 @@ class ReferenceObject:
     focal_log_sd: float = 0.0
     mirrored: bool = False
     beyond_edge: bool = False
+    corner_beyond_edge: bool = False
     kind_assumed: bool = False
 
     @property

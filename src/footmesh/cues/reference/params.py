@@ -177,6 +177,23 @@ CUT_ANGLE_TRUST_DEG = 0.2
 of a sheet cut by the photo's edge is worked out: the far corners are extrapolated along sides that bow on a real
 sheet. On the seven real A4 photos cropped across their sheets (``bench_reference.py``'s cropped table) the
 distance errors were up to 3.4 of the SD without it, within 2.4 with it (10 of 14 within one)."""
+BEYOND_MIN_SHOWN = 0.5
+"""A sheet with one corner beyond the photo's edge (its other three and all four sides' lines in view): each of the
+two sides running to that corner must show at least this share of its length, or the corner, placed where their
+lines meet, rests on too short a stretch of either."""
+BEYOND_CLEAR_PX = 2 * FIRST_RADIUS_PX
+"""...and its three corners in view must lie this far (px) inside the photo: a side running along the photo's edge
+shows a sliver of itself, and the line read there is another edge's (a real photo cropped 1 px past a corner: the
+sheet's end read 17 px inside the paper)."""
+BEYOND_EDGE_INSET_PX = 3.0
+"""...and its paper must reach the photo's edge between where those two sides leave it, read this far (px) inside
+the edge (``finish._paper_to_the_edge``)."""
+BEYOND_FLOOR_MATCH = 0.25
+"""...and what lies outside each of its sides must match the floor beyond the others this closely (a share of the
+sides' typical step; a whole sheet's: ``FLOOR_MATCH``): with a corner out of sight, a shadow's edge along the leg
+across a sheet cut by the photo's edge made, with the sheet's three sides in view, a US letter sheet with a corner
+beyond the edge (its outside 0.45 of the step from the floor's; a front render cropped,
+``tests/cues/test_reference_cut.py``)."""
 CUT_LENGTH_MARGIN = 0.1
 """A sheet cut by the photo's edge is taken only where one completion alone fits what shows: the other (the side in
 view whole taken for the other side of the sheet) would have to leave the photo this fraction short of where the

@@ -103,10 +103,10 @@ def _candidate_groups(
     """Rough (4, 2) px quadrilaterals (canonical order) that might be one of ``kinds``, from the outlines of
     ``regions``: "sheet" (bright in every channel) or "card" (thresholds of the grey level and of each channel,
     either way, of the chroma, and edges); in groups to try in turn: the quads the outlines make, then (sheets)
-    those made by completing a hidden corner, then those of a sheet cut by the photo's edge (``_cut_many``). Near
-    duplicates of each other and of the keys in ``seen`` (updated) are left out. ``free_focal``: K's focal length
-    is a guess; each quad is also tested, for the kinds whose perspective may correct it (``FOCAL_KINDS``), at the
-    focal length that suits it best (``focal``)."""
+    those made by completing a hidden corner, then those of a sheet cut by the photo's edge (``_cut_many``), then
+    those with one corner beyond it (``_beyond_many``). Near duplicates of each other and of the keys in ``seen``
+    (updated) are left out. ``free_focal``: K's focal length is a guess; each quad is also tested, for the kinds
+    whose perspective may correct it (``FOCAL_KINDS``), at the focal length that suits it best (``focal``)."""
     if regions not in ("sheet", "card"):
         raise ValueError(f"regions must be 'sheet' or 'card', got {regions!r}")
     h, w = blurred.shape[:2]
@@ -188,6 +188,7 @@ def _candidate_groups(
     assumed = assumed_sheet(kinds)  # completed and cut sheets do not show their proportions
     sizes = [SIZES_MM[assumed]] if regions == "sheet" and assumed is not None else []
     cut = [quad for size in sizes for quad in _cut_many(rough[big], K, h, w, size)]
+    beyond = _canonical_many(_beyond_many(rough[big], h, w)) if regions == "sheet" else np.zeros((0, 4, 2))
     keep = _inside_many(rough, h, w)
     rough, source, big = _canonical_many(rough[keep]), source[keep], big[keep]
     keep = np.isfinite(rough).all(axis=(1, 2))
@@ -239,7 +240,30 @@ def _candidate_groups(
                         seen.add(key)
                         quads.append(quad)
         groups.append(cut)
+        # last, a sheet with one corner beyond the photo's edge: its four sides' lines still show its shape
+        beyond = beyond[np.isfinite(beyond).all(axis=(1, 2))]
+        passed = _classify_many(beyond, K, shapes, 2 * LOOSE_FACTOR)
+        if free_focal:
+            passed |= _classify_many(beyond, K, focal_kinds, 2 * LOOSE_FACTOR, free_focal=True)
+        quads = []
+        for quad in beyond[passed]:
+            key = tuple(np.round(quad / 2.0).astype(int).ravel().tolist())
+            if key not in seen:
+                seen.add(key)
+                quads.append(quad)
+        groups.append(quads)
     return groups
+
+
+def _beyond_many(quads: np.ndarray, h: int, w: int) -> np.ndarray:
+    """The (N, 4, 2) px of (M, 4, 2) rough quads with exactly one corner beyond the photo's edge (not
+    ``BORDER_MARGIN_PX`` inside it), no farther out than the photo is large: a sheet's region that the edge cuts
+    across a corner has a fifth side along the edge, which its quads skip."""
+    m = BORDER_MARGIN_PX
+    with np.errstate(invalid="ignore"):
+        x, y = quads[..., 0], quads[..., 1]
+        inside = (x >= m) & (y >= m) & (x <= w - 1 - m) & (y <= h - 1 - m)  # (M, 4)
+    return quads[(inside.sum(axis=1) == 3) & _inside_many(quads, h, w, margin=-max(h, w))]
 
 
 def _complete_many(

@@ -11,7 +11,7 @@ import numpy as np
 from footmesh import references
 from footmesh.cues.reference import focal
 from footmesh.cues.reference.cut import finish_cut
-from footmesh.cues.reference.finish import _finish
+from footmesh.cues.reference.finish import _finish, finish_beyond
 from footmesh.cues.reference.marker import _detect_marker, _overlaps
 from footmesh.cues.reference.objects import ReferenceObject, ReferenceSearch
 from footmesh.cues.reference.params import (
@@ -198,9 +198,12 @@ def _try_groups(
     accepted: list[np.ndarray] = []  # corners already found, in canonical order
     largest_rejected: list[tuple[float, str]] = []  # (area px, why) of the largest rough quad rejected
 
-    def try_candidates(quads: list[np.ndarray], completed: bool = False, cut: bool = False) -> None:
+    def try_candidates(
+        quads: list[np.ndarray], completed: bool = False, cut: bool = False, beyond: bool = False
+    ) -> None:
         """Refine and test rough quads in turn, keeping the best-scoring object of each kind (``cut``: quads of
-        sheets cut by the photo's edge, ``cut.finish_cut``)."""
+        sheets cut by the photo's edge, ``cut.finish_cut``; ``beyond``: with a corner beyond it,
+        ``finish.finish_beyond``)."""
         for quad in quads:
             # many thresholds give the same object: refine it once
             if any(np.max(np.linalg.norm(quad - corners, axis=1)) < 3.0 for corners in accepted):
@@ -210,6 +213,8 @@ def _try_groups(
             why: list[str] = []
             if cut:  # three sides do not show the sheet's proportions
                 result = finish_cut(quad, assumed_sheet(wanted), blurred, K, valid, focal_prior_log_sd, why, masked)
+            elif beyond:
+                result = finish_beyond(quad, wanted, blurred, K, valid, why, focal_prior_log_sd)
             else:
                 result = _finish(
                     quad,
@@ -259,8 +264,15 @@ def _try_groups(
         try_candidates(group, completed=True)
         if (sheet := best_of(SHEETS)) is not None:
             return ReferenceSearch(sheet)
-    # last, a sheet with a side beyond the photo's edge: its scale along the cut sides rests on the focal length
-    for group in sheet_groups[2:]:
+    # then a sheet with one corner beyond the photo's edge: its four sides' lines show its shape and perspective
+    for group in sheet_groups[3:4]:
+        try_candidates(group, beyond=True)
+        if (sheet := best_of(SHEETS)) is not None:
+            return ReferenceSearch(sheet)
+    # last, a sheet with a side beyond the photo's edge: its scale along the cut sides rests on the focal length,
+    # and its proportions are assumed (tried before the one above, it took sheets with one corner beyond the edge
+    # for sheets cut across two: their corners 120-620 px off on front and guided renders)
+    for group in sheet_groups[2:3]:
         try_candidates(group, cut=True)
         if (sheet := best_of(SHEETS)) is not None:
             return ReferenceSearch(sheet)

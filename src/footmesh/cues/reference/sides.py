@@ -14,6 +14,7 @@ import numpy as np
 from footmesh.cues.reference.params import (
     _KERNEL5,
     BLUR_SIGMA_PX,
+    BORDER_MARGIN_PX,
     COMPLETION_MIN_COVERAGE,
     COMPLETION_MIN_SUPPORT,
     CONTINUATION_RADIUS_PX,
@@ -346,20 +347,27 @@ def _fit_line(edges: _SideEdges) -> _Line | None:
 
 
 def _fit_sides(
-    quad: np.ndarray, blurred: np.ndarray, valid: np.ndarray | None, radius: float
+    quad: np.ndarray, blurred: np.ndarray, valid: np.ndarray | None, radius: float, in_view: bool = False
 ) -> list[_Line | None] | None:
     """The line fitted to the image's edges along each side of a quad (None where none), or None if a side is
-    too short (line i runs from corner i to corner i + 1).
+    too short (line i runs from corner i to corner i + 1). ``in_view``: a corner may lie beyond the photo's edge,
+    and each side is read along its part in the photo only (``side_in_view``).
 
     Once one side has no line and two could not carry a sheet's completion, the quad can neither be refined
     (every side needed) nor completed (three good sides needed): the remaining sides are left None unfitted.
     """
-    sides = [float(np.linalg.norm(quad[(i + 1) % 4] - quad[i])) for i in range(4)]
+    h, w = blurred.shape[:2]
+    ends = [(quad[i], quad[(i + 1) % 4]) for i in range(4)]
+    if in_view:
+        ends = [side_in_view(p, q, h, w) for p, q in ends]
+        if any(end is None for end in ends):
+            return None
+    sides = [float(np.linalg.norm(q - p)) for p, q in ends]
     if min(sides) < MIN_SIDE_PX:
         return None
     lines: list[_Line | None] = []
-    for i in range(4):
-        lines.append(_side_line(blurred, quad[i], quad[(i + 1) % 4], min(radius, 0.15 * sides[i]), valid))
+    for i, (p, q) in enumerate(ends):
+        lines.append(_side_line(blurred, p, q, min(radius, 0.15 * sides[i]), valid))
         if any(ln is None for ln in lines) and sum(not _completable(ln) for ln in lines) >= 2:
             return lines + [None] * (3 - i)
     return lines
@@ -383,21 +391,49 @@ def _refine_sides(
     valid: np.ndarray | None,
     radii: tuple[float, ...] = (FIRST_RADIUS_PX, 1.5),
     first: list[_Line | None] | None = None,
+    in_view: bool = False,
 ) -> tuple[np.ndarray, list[_Line]] | None:
     """Sub-pixel corners of a quad (4, 2) px from the image's edges along its sides, and the four fitted lines
     (line i runs from corner i to corner i + 1). ``first``: ``_fit_sides(quad, ..., radii[0])`` when the caller
-    already has it."""
+    already has it. ``in_view``: a corner may lie beyond the photo's edge (``_fit_sides``); it is placed where its
+    two sides' lines meet, however far that moves it."""
+    h, w = blurred.shape[:2]
     lines: list[_Line] = []
     for step, radius in enumerate(radii):
-        fitted = first if step == 0 and first is not None else _fit_sides(quad, blurred, valid, radius)
+        fitted = first if step == 0 and first is not None else _fit_sides(quad, blurred, valid, radius, in_view)
         if fitted is None or any(ln is None for ln in fitted):
             return None
         lines = fitted
         new = _corners_from_lines([(ln.point, ln.direction) for ln in lines])
-        if new is None or np.max(np.linalg.norm(new - quad, axis=1)) > 3.0 * radius + 2.0:
+        seen = _in_photo(quad, h, w) if in_view else np.ones(4, dtype=bool)
+        if new is None or np.max(np.linalg.norm(new - quad, axis=1)[seen]) > 3.0 * radius + 2.0:
             return None
         quad = new
     return quad, lines
+
+
+def _in_photo(quad: np.ndarray, h: int, w: int) -> np.ndarray:
+    """(4,) bool: which corners of a (4, 2) px quad lie at least ``BORDER_MARGIN_PX`` inside the photo."""
+    lo, hi = BORDER_MARGIN_PX, np.array([w - 1.0, h - 1.0]) - BORDER_MARGIN_PX
+    return np.all((quad >= lo) & (quad <= hi), axis=1)
+
+
+def side_in_view(p: np.ndarray, q: np.ndarray, h: int, w: int) -> tuple[np.ndarray, np.ndarray] | None:
+    """The part of the segment p -> q (2,) px each inside the photo (``BORDER_MARGIN_PX`` in from its edges), in the
+    same direction; None when none of it is. (Liang-Barsky clipping: ``cv2.clipLine`` takes whole pixels only.)"""
+    lo, hi = BORDER_MARGIN_PX, np.array([w - 1.0, h - 1.0]) - BORDER_MARGIN_PX
+    d = q - p
+    t0, t1 = 0.0, 1.0
+    for k in (0, 1):
+        if abs(d[k]) < 1e-12:
+            if not lo <= p[k] <= hi[k]:
+                return None
+            continue
+        a, b = (lo - p[k]) / d[k], (hi[k] - p[k]) / d[k]
+        t0, t1 = max(t0, min(a, b)), min(t1, max(a, b))
+    if t1 <= t0:
+        return None
+    return p + t0 * d, p + t1 * d
 
 
 def _complete_sheet(
@@ -651,7 +687,9 @@ def _is_paper(quad: np.ndarray, lines: list[_Line | None]) -> bool:
     return int(np.sum(inner.mean(axis=1) > outer.mean(axis=1) + MIN_CONTRAST / 2)) >= min(3, len(inner))
 
 
-def _strange_borders(quad: np.ndarray, lines: list[_Line | None]) -> tuple[list[int], list[int]]:
+def _strange_borders(
+    quad: np.ndarray, lines: list[_Line | None], floor_match: float = FLOOR_MATCH
+) -> tuple[list[int], list[int]]:
     """The sides (0..3, of those with a line) of a sheet that do not part the paper from the floor, and of those
     the ones with the floor inside (placed beside the sheet, not over it).
 
@@ -663,7 +701,8 @@ def _strange_borders(quad: np.ndarray, lines: list[_Line | None]) -> tuple[list[
     is compared with the others' darkened as much as its paper is (where its paper is darker than
     ``SHADOW_MAX_BRIGHTNESS`` of the rest); a trouser's hem over the sheet leaves the paper inside it as bright as
     elsewhere. And the step across each side must be a sheet's side's (``WEAK_SIDE_SHARE`` of the strongest), not
-    the shading of the paper or the skin's folds that a quad the search completed itself may run along."""
+    the shading of the paper or the skin's folds that a quad the search completed itself may run along.
+    ``floor_match``: how near (a share of the sides' typical step) the outsides must match."""
     inner, outer = _inner_outer(quad, lines)
     steps = np.linalg.norm(inner - outer, axis=1)
     change = float(np.median(steps))
@@ -677,9 +716,9 @@ def _strange_borders(quad: np.ndarray, lines: list[_Line | None]) -> tuple[list[
         shade = shade if shade < SHADOW_MAX_BRIGHTNESS else 1.0
         unlike = min(np.linalg.norm(outer[i] - shade * outer[j]) for j in range(len(sides)) if j != i)
         weak = steps[i] < WEAK_SIDE_SHARE * steps.max()
-        if darker or weak or unlike >= FLOOR_MATCH * shade * change:
+        if darker or weak or unlike >= floor_match * shade * change:
             strange.append(side)
-            if np.linalg.norm(inner[i] - floor) < FLOOR_MATCH * change:
+            if np.linalg.norm(inner[i] - floor) < floor_match * change:
                 outside.append(side)
     return strange, outside
 
