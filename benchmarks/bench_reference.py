@@ -13,7 +13,8 @@ their corners marked by hand (``tests/data/real_a4_corners.json``), searched the
 (``footmesh.eval.real_reference``): found, the corners' error (px at 1600 on the photo's longer side) and the
 error of the camera-to-sheet distance against the marked corners' pose; the same photos turned by quarter
 turns (a phone held sideways or upside down), where the search must find the same sheet; and cropped so that the
-photo's edge cuts the sheet (a photo framed on the foot), where its far corners are placed from its other sides.
+photo's edge cuts the sheet (a photo framed on the foot), where its far corners are placed from its other sides,
+or cuts off one corner (a sheet lying askew), which is placed where its two sides meet.
 
 A4 and US letter sheets told apart (by their side ratio, 1.414 and 1.294): photos of each searched for every kind,
 as ``footmesh measure`` does by default, and for that sheet alone (``--reference``), as the user who names it.
@@ -235,11 +236,26 @@ CROP_DEPTHS = (0.25, 0.45)
 """How far across the sheet the crops' edges lie (``score_cropped``'s depth)."""
 
 
-def format_cropped_table(photos: Path) -> str:
+MIN_CORNER_GAP_PX = 8.0
+"""A crop cutting off one corner of a sheet is scored where that corner lies at least this far (px at 1600) beyond
+the next corner across the crop's edge."""
+
+
+def _corner_gap_px(marked_px: np.ndarray, edge: str) -> float:
+    """How far (px) the sheet's corner nearest the photo's ``edge`` lies beyond the next nearest, across it."""
+    axis = 1 if edge in ("top", "bottom") else 0
+    signed = marked_px[:, axis] if edge in ("top", "left") else -marked_px[:, axis]
+    first, second = np.sort(signed)[:2]
+    return float(second - first)
+
+
+def format_cropped_table(photos: Path, corners_cut: int = 2) -> str:
     """Markdown table of the detector on the real A4 photos cropped so that one edge of the photo cuts the sheet
-    (each edge, ``CROP_DEPTHS``; ``eval.real_reference.score_cropped``): per photo how many were found (a crop that
-    leaves no foot or puts the principal point outside it is not scored), the worst corner (all four, the far ones
-    beyond the crop) and the distance error against its SD; and the reasons the others were not taken."""
+    and leaves ``corners_cut`` of its corners beyond it (each edge, ``CROP_DEPTHS``;
+    ``eval.real_reference.score_cropped``): per photo how many were found (a crop that leaves no foot, puts the
+    principal point outside it or, for one corner, cuts the sheet where its corners lie within ``MIN_CORNER_GAP_PX``
+    of each other across the edge, is not scored), the worst corner (all four, those beyond the crop too) and the
+    distance error against its SD; and the reasons the others were not taken."""
     import collections
     import tempfile
 
@@ -247,8 +263,9 @@ def format_cropped_table(photos: Path) -> str:
     from footmesh.eval.real_reference import read_corners, score_cropped
 
     marked = read_corners(REAL_CORNERS)
+    cut = "the sheet" if corners_cut == 2 else "one corner of the sheet"
     lines = [
-        "| real photo cropped across the sheet | found / scored | worst corner px at 1600 | distance error % (SD) |",
+        f"| real photo cropped across {cut} | found / scored | worst corner px at 1600 | distance error % (SD) |",
         "|---|---:|---:|---:|",
     ]
     reasons: collections.Counter[str] = collections.Counter()
@@ -257,9 +274,11 @@ def format_cropped_table(photos: Path) -> str:
         for name in sorted(marked):
             scores = []
             for edge in ("top", "bottom", "left", "right"):
+                if corners_cut == 1 and _corner_gap_px(marked[name], edge) < MIN_CORNER_GAP_PX:
+                    continue  # the sheet lies square to that edge: no crop cuts off one corner alone
                 for depth in CROP_DEPTHS:
                     try:
-                        scores.append(score_cropped(photos / name, marked[name], edge, depth, tmp))
+                        scores.append(score_cropped(photos / name, marked[name], edge, depth, tmp, corners_cut))
                     except (Refusal, ValueError):  # no foot left in the crop, or its principal point outside it
                         continue
             found = [s for s in scores if s.found]
@@ -301,6 +320,8 @@ def main() -> None:
         print(format_turned_table(args.real))
         print()
         print(format_cropped_table(args.real))
+        print()
+        print(format_cropped_table(args.real, corners_cut=1))
     else:
         print(f"(real photos not found at {args.real}: the synthetic table only)")
     if args.no_reference.is_dir():
