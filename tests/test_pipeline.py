@@ -1083,6 +1083,27 @@ def test_a_real_photo_whose_edge_cuts_the_sheet_is_measured_and_says_so(tmp_path
     assert letter["measurements"]["stick_length"]["value_mm"] != result["measurements"]["stick_length"]["value_mm"]
 
 
+def test_a_real_photo_whose_edge_cuts_off_a_corner_of_the_sheet_is_measured_and_says_so(tmp_path):
+    """A real photo cropped so that one corner of its sheet, lying askew, leaves the picture, measured without
+    intrinsics as a phone's photo without EXIF is: millimetres from the sheet (its kind seen, not assumed), the
+    corner placed beyond the photo, and the result says so; the length within its uncertainty of the whole
+    photo's (236.1 mm). It came back unscaled before."""
+    from footmesh.eval.real_reference import read_corners, score_cropped
+
+    root = Path(__file__).resolve().parents[1]
+    name = "arshoe_barefeet_4.jpg"
+    marked = read_corners(root / "tests" / "data" / "real_a4_corners.json")[name]
+    photos = root / ".." / "shared" / "real" / "a4" / "photos"
+    assert score_cropped(photos / name, marked, "left", 0.25, tmp_path, corners_cut=1).found
+    result = measure_photo(tmp_path / "arshoe_barefeet_4_left25_1.png", tmp_path / "out")
+    assert result["scaled"] and result["scale_source"] == "a4"
+    assert not result["reference"]["kind_assumed"]
+    assert min(x for x, _ in result["reference"]["corners_px"]) < 0  # the corner beyond the photo's left edge
+    assert any("a corner of an A4 sheet lies beyond the photo's edge" in message for message in result["messages"])
+    length = result["measurements"]["stick_length"]
+    assert abs(length["value_mm"] - 236.1) <= length["uncertainty_mm"]
+
+
 def _feet_seen_from_above(splay_deg: float, step_mm: tuple[float, float], roll_deg: float) -> dict[str, np.ndarray]:
     """(18, 2) px joints of a left and a right model foot standing on the floor, seen from straight above: each
     turned ``splay_deg`` outwards, the right one ``step_mm`` (ahead, to the right) of the left; the picture rolled
