@@ -1095,7 +1095,7 @@ def test_a_real_photo_whose_edge_cuts_off_a_corner_of_the_sheet_is_measured_and_
     marked = read_corners(root / "tests" / "data" / "real_a4_corners.json")[name]
     photos = root / ".." / "shared" / "real" / "a4" / "photos"
     assert score_cropped(photos / name, marked, "left", 0.25, tmp_path, corners_cut=1).found
-    result = measure_photo(tmp_path / "arshoe_barefeet_4_left25_1.png", tmp_path / "out")
+    result = measure_photo(tmp_path / "arshoe_barefeet_4_left25_corner.png", tmp_path / "out")
     assert result["scaled"] and result["scale_source"] == "a4"
     assert not result["reference"]["kind_assumed"]
     assert min(x for x, _ in result["reference"]["corners_px"]) < 0  # the corner beyond the photo's left edge

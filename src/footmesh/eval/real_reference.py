@@ -200,7 +200,8 @@ def score_cropped(
         start[axis] = cut
     else:
         stop[axis] = cut
-    cropped_name = Path(folder) / f"{Path(path).stem}_{edge}{round(100 * depth)}_{corners_cut}"
+    corner = "_corner" if corners_cut == 1 else ""
+    cropped_name = Path(folder) / f"{Path(path).stem}_{edge}{round(100 * depth)}{corner}"
     image = rgb[start[1] : stop[1], start[0] : stop[0]]
     _write_png(cropped_name.with_suffix(".png"), image)
     focal = float(whole.found.K[0, 0]) * to_photo

@@ -240,7 +240,8 @@ def _candidate_groups(
                         seen.add(key)
                         quads.append(quad)
         groups.append(cut)
-        # last, a sheet with one corner beyond the photo's edge: its four sides' lines still show its shape
+        # a sheet with one corner beyond the photo's edge, its four sides' lines still showing its shape (tried
+        # before the cut ones: ``search._try_groups``)
         beyond = beyond[np.isfinite(beyond).all(axis=(1, 2))]
         passed = _classify_many(beyond, K, shapes, 2 * LOOSE_FACTOR)
         if free_focal:
@@ -259,10 +260,7 @@ def _beyond_many(quads: np.ndarray, h: int, w: int) -> np.ndarray:
     """The (N, 4, 2) px of (M, 4, 2) rough quads with exactly one corner beyond the photo's edge (not
     ``BORDER_MARGIN_PX`` inside it), no farther out than the photo is large: a sheet's region that the edge cuts
     across a corner has a fifth side along the edge, which its quads skip."""
-    m = BORDER_MARGIN_PX
-    with np.errstate(invalid="ignore"):
-        x, y = quads[..., 0], quads[..., 1]
-        inside = (x >= m) & (y >= m) & (x <= w - 1 - m) & (y <= h - 1 - m)  # (M, 4)
+    inside = _inside_many(quads.reshape(-1, 1, 2), h, w).reshape(-1, 4)  # (M, 4) each corner
     return quads[(inside.sum(axis=1) == 3) & _inside_many(quads, h, w, margin=-max(h, w))]
 
 

@@ -46,7 +46,7 @@ from footmesh.cues.reference.params import (
     STRAIGHT_EDGE_PX,
     WEAK_SIDE_SHARE,
 )
-from footmesh.cues.reference.quads import _corners_from_lines, _intersect, _parallelogram
+from footmesh.cues.reference.quads import _corners_from_lines, _inside_many, _intersect, _parallelogram
 
 
 def _paper_beside(quad: np.ndarray, masked: np.ndarray, blurred: np.ndarray) -> bool:
@@ -405,17 +405,11 @@ def _refine_sides(
             return None
         lines = fitted
         new = _corners_from_lines([(ln.point, ln.direction) for ln in lines])
-        seen = _in_photo(quad, h, w) if in_view else np.ones(4, dtype=bool)
+        seen = _inside_many(quad[:, None], h, w) if in_view else np.ones(4, dtype=bool)
         if new is None or np.max(np.linalg.norm(new - quad, axis=1)[seen]) > 3.0 * radius + 2.0:
             return None
         quad = new
     return quad, lines
-
-
-def _in_photo(quad: np.ndarray, h: int, w: int) -> np.ndarray:
-    """(4,) bool: which corners of a (4, 2) px quad lie at least ``BORDER_MARGIN_PX`` inside the photo."""
-    lo, hi = BORDER_MARGIN_PX, np.array([w - 1.0, h - 1.0]) - BORDER_MARGIN_PX
-    return np.all((quad >= lo) & (quad <= hi), axis=1)
 
 
 def side_in_view(p: np.ndarray, q: np.ndarray, h: int, w: int) -> tuple[np.ndarray, np.ndarray] | None:
