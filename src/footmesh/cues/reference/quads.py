@@ -199,10 +199,16 @@ def _candidate_groups(
     # with a corner hidden, which were then tried whole rather than completed (2 of 30 random renders: one lost,
     # one 3 % off)
     shapes = [k for k in RECTANGLES if k not in SHEETS or k == assumed]
-    passed = _classify_many(rough, K, shapes, 2 * LOOSE_FACTOR)
     focal_kinds = [k for k in shapes if k in FOCAL_KINDS]
-    if free_focal:
-        passed |= _classify_many(rough, K, focal_kinds, 2 * LOOSE_FACTOR, free_focal=True)
+
+    def shaped(candidates: np.ndarray) -> np.ndarray:
+        """(M,) bool: which of (M, 4, 2) quads have one of ``shapes``, loosely (at a focal length of their own too)."""
+        ok = _classify_many(candidates, K, shapes, 2 * LOOSE_FACTOR)
+        if free_focal:
+            ok |= _classify_many(candidates, K, focal_kinds, 2 * LOOSE_FACTOR, free_focal=True)
+        return ok
+
+    passed = shaped(rough)
     quads: list[np.ndarray] = []
     if passed.any():
         shape_ok, src = rough[passed], source[passed]
@@ -216,10 +222,7 @@ def _candidate_groups(
             held = _classify(quad, K, [k for k in kinds if k in shapes], loose=LOOSE_FACTOR) is None
             if held and (not free_focal or _classify(quad, _free_focal_K(quad, K), focal_kinds, LOOSE_FACTOR) is None):
                 continue
-            key = tuple(np.round(quad / 2.0).astype(int).ravel().tolist())
-            if key not in seen:
-                seen.add(key)
-                quads.append(quad)
+            quads.extend(_unseen([quad], seen))
     groups = [quads]
     if regions == "sheet":
         # a sheet's region with a corner hidden (the foot, the leg) is no rectangle's image: complete it from three
@@ -234,26 +237,24 @@ def _candidate_groups(
                 _, first = np.unique(
                     np.round(completed / 4.0).astype(np.int64).reshape(len(completed), -1), axis=0, return_index=True
                 )
-                for quad in completed[np.sort(first)]:
-                    key = tuple(np.round(quad / 2.0).astype(int).ravel().tolist())
-                    if key not in seen:
-                        seen.add(key)
-                        quads.append(quad)
+                quads.extend(_unseen(completed[np.sort(first)], seen))
         groups.append(cut)
         # a sheet with one corner beyond the photo's edge, its four sides' lines still showing its shape (tried
         # before the cut ones: ``search._try_groups``)
         beyond = beyond[np.isfinite(beyond).all(axis=(1, 2))]
-        passed = _classify_many(beyond, K, shapes, 2 * LOOSE_FACTOR)
-        if free_focal:
-            passed |= _classify_many(beyond, K, focal_kinds, 2 * LOOSE_FACTOR, free_focal=True)
-        quads = []
-        for quad in beyond[passed]:
-            key = tuple(np.round(quad / 2.0).astype(int).ravel().tolist())
-            if key not in seen:
-                seen.add(key)
-                quads.append(quad)
-        groups.append(quads)
+        groups.append(_unseen(beyond[shaped(beyond)], seen))
     return groups
+
+
+def _unseen(quads, seen: set[tuple[int, ...]]) -> list[np.ndarray]:
+    """The (4, 2) px quads not yet in ``seen`` (keys to 2 px, updated), in order: one refinement per object."""
+    out = []
+    for quad in quads:
+        key = tuple(np.round(quad / 2.0).astype(int).ravel().tolist())
+        if key not in seen:
+            seen.add(key)
+            out.append(quad)
+    return out
 
 
 def _beyond_many(quads: np.ndarray, h: int, w: int) -> np.ndarray:
